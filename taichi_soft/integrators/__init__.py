@@ -1,0 +1,22 @@
+"""Integrator registry: the CLI, tests and benchmarks all read ``REGISTRY``."""
+from __future__ import annotations
+
+from ..errors import UserError
+from . import explicit  # noqa: F401  (registers the explicit family)
+from .base import REGISTRY, Integrator, register
+
+__all__ = ["REGISTRY", "Integrator", "register", "make_integrator", "names"]
+
+
+def names() -> list[str]:
+    """Registered integrator names, in registration order."""
+    return list(REGISTRY)
+
+
+def make_integrator(name: str, model, terrain, options: dict | None = None) -> Integrator:
+    """Instantiate the integrator called ``name``; unknown names raise ``UserError`` listing the valid ones."""
+    try:
+        cls = REGISTRY[name]
+    except KeyError:
+        raise UserError(f"unknown integrator {name!r}; choose one of: {', '.join(REGISTRY)}") from None
+    return cls(model, terrain, options)

@@ -1,0 +1,75 @@
+"""Taichi start-up: backend and precision are chosen here, never at import time."""
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
+os.environ.setdefault("TI_LOG_LEVEL", "error")
+
+import taichi as ti  # noqa: E402
+
+from .errors import UserError  # noqa: E402
+
+ARCHS = ("cpu", "cuda", "vulkan", "metal", "auto")
+PRECISIONS = ("f32", "f64")
+
+_current: dict | None = None
+
+
+def init(arch: str = "cpu", precision: str = "f64", **kwargs) -> dict:
+    """Initialise Taichi on ``arch`` with default float ``precision``; returns what was started.
+
+    Raises ``UserError`` if the backend is unknown or not available here (Taichi would silently
+    fall back to the CPU), or if the backend cannot do f64. Fast math stays off so that the
+    divergence check sees NaN and benchmarks compare exact arithmetic.
+    """
+    global _current
+    if arch not in ARCHS:
+        raise UserError(f"unknown backend {arch!r}; choose one of: {', '.join(ARCHS)}")
+    if precision not in PRECISIONS:
+        raise UserError(f"unknown precision {precision!r}; choose one of: {', '.join(PRECISIONS)}")
+    ti_arch = {"cpu": ti.cpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "metal": ti.metal, "auto": ti.gpu}[arch]
+    if arch == "auto":
+        # Prefer a GPU, quietly fall back to the CPU.
+        ti_arch = ti.gpu
+    options = dict(fast_math=False, offline_cache=True)
+    options.update(kwargs)
+    # ti.init prints a "Starting on arch" banner to stdout; keep stdout for our own output.
+    with contextlib.redirect_stdout(io.StringIO()):
+        ti.init(arch=ti_arch, default_fp=ti.f64 if precision == "f64" else ti.f32, **options)
+    started = ti.lang.impl.current_cfg().arch
+    name = _arch_name(started)
+    if arch not in ("auto", "cpu") and name != arch:
+        ti.reset()
+        raise UserError(f"backend {arch!r} is not available on this machine; use --arch cpu or --arch auto")
+    if precision == "f64" and name in ("vulkan", "metal"):
+        ti.reset()
+        raise UserError(f"backend {name!r} has no f64 support here; use --precision f32")
+    _current = {"arch": name, "precision": precision}
+    return dict(_current)
+
+
+def current() -> dict | None:
+    """The backend and precision of the running Taichi, or None before ``init``."""
+    return None if _current is None else dict(_current)
+
+
+def _arch_name(a) -> str:
+    for name, value in (("cpu", ti.x64), ("cpu", ti.arm64), ("cuda", ti.cuda), ("vulkan", ti.vulkan), ("metal", ti.metal)):
+        if a == value:
+            return name
+    return str(a)
+
+
+def available_archs() -> list[str]:
+    """Backends this machine can run, by asking Taichi (cpu is always there)."""
+    found = ["cpu"]
+    for name, a in (("cuda", ti.cuda), ("vulkan", ti.vulkan), ("metal", ti.metal)):
+        try:
+            if ti.lang.misc.is_arch_supported(a):
+                found.append(name)
+        except Exception:  # noqa: BLE001 - probing must never crash `list`
+            pass
+    return found

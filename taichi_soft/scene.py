@@ -1,0 +1,295 @@
+"""Scene files: TOML with [sim], [[body]], [terrain], [contact] and [render] tables.
+
+``load_scene(name_or_path, overrides)`` reads a scene, applies ``--set KEY=VALUE`` overrides,
+fills defaults and validates every value, raising ``UserError`` with one line that names the
+key, the bad value and what is allowed. The result is a plain nested dict (``Scene.data``)
+that ``Scene.build`` turns into runtime objects.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import UserError
+from .terrain import DEFAULTS as TERRAIN_DEFAULTS
+from .terrain import KINDS as TERRAIN_KINDS
+
+SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+
+SIM_DEFAULTS = {"integrator": "semi_implicit_euler", "dt": 0.001, "duration": 5.0, "gravity": [0.0, -9.8, 0.0]}
+SPRING_DEFAULT = {"k": 2000.0, "damping": 60.0}
+BODY_DEFAULTS = {
+    "n": 10,
+    "size": 4.0,
+    "particle_mass": 1.0,
+    "center": [0.0, 9.0, 0.0],
+    "rotation": {"axis": [1.0, 0.0, 1.0], "degrees": 0.0},
+    "velocity": [0.0, 0.0, 0.0],
+    "angular_velocity": [0.0, 0.0, 0.0],
+    "stretch": dict(SPRING_DEFAULT),
+    "shear": dict(SPRING_DEFAULT),
+    "bend": dict(SPRING_DEFAULT),
+}
+CONTACT_DEFAULTS = {"restitution": 0.8, "friction": 0.3, "epsilon": 0.01}
+RENDER_DEFAULTS = {"fps": 30, "resolution": [1280, 720], "camera": {}}
+CAMERA_KEYS = {"position", "lookat", "up", "fov"}
+TOP_KEYS = ("sim", "body", "terrain", "contact", "render", "solver")
+MAX_N = 200  # particles per cube edge: 8 million particles is already beyond any device here
+
+
+def scene_names() -> list[str]:
+    """Names of the scenes shipped in ``scenes/`` (file stems)."""
+    return sorted(p.stem for p in SCENES_DIR.glob("*.toml"))
+
+
+def resolve_scene_path(name_or_path: str) -> Path:
+    """A shipped scene name (``plane``) or a path to a ``.toml`` file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists() or "/" in name_or_path:
+        if not p.is_file():
+            raise UserError(f"scene file {name_or_path!r} does not exist")
+        return p
+    candidate = SCENES_DIR / f"{name_or_path}.toml"
+    if not candidate.is_file():
+        raise UserError(f"unknown scene {name_or_path!r}; choose one of: {', '.join(scene_names())} or a path to a .toml file")
+    return candidate
+
+
+# -- overrides -----------------------------------------------------------------------------
+def parse_value(text: str):
+    """A ``--set`` value: read as a TOML value (number, bool, array, inline table) or else a bare string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_override(data: dict, assignment: str):
+    """Apply one ``KEY=VALUE`` (dotted key; ``body.0.stretch.k=5000``) to the raw scene dict."""
+    if "=" not in assignment:
+        raise UserError(f"--set {assignment!r}: expected KEY=VALUE, e.g. sim.dt=0.002")
+    key, text = assignment.split("=", 1)
+    parts = key.strip().split(".")
+    if not all(parts):
+        raise UserError(f"--set {assignment!r}: empty part in key {key!r}")
+    if parts[0] not in TOP_KEYS:
+        raise UserError(f"--set {key}: unknown section {parts[0]!r}; sections are {', '.join(TOP_KEYS)}")
+    value = parse_value(text.strip())
+    node = data
+    for depth, part in enumerate(parts[:-1]):
+        if isinstance(node, list):
+            node = node[_list_index(node, part, parts[: depth + 1])]
+        else:
+            if parts[0] == "body" and depth == 0:
+                node = node.setdefault(part, [{}])
+                continue
+            node = node.setdefault(part, {})
+            if not isinstance(node, (dict, list)):
+                raise UserError(f"--set {key}: {'.'.join(parts[: depth + 1])} is a value, not a table")
+    last = parts[-1]
+    if isinstance(node, list):
+        node[_list_index(node, last, parts)] = value
+    else:
+        if parts == ["terrain", "kind"] and node.get("kind", "plane") != value:
+            # Switching terrain kind: the old kind's geometry keys no longer apply.
+            for k in list(node):
+                if k != "kind":
+                    del node[k]
+        node[last] = value
+
+
+def _list_index(lst: list, part: str, path: list) -> int:
+    try:
+        idx = int(part)
+    except ValueError:
+        raise UserError(f"--set {'.'.join(path)}: {part!r} is not a body index (0..{len(lst) - 1})") from None
+    if not 0 <= idx < len(lst):
+        raise UserError(f"--set {'.'.join(path)}: body index {idx} out of range (the scene has {len(lst)} bodies)")
+    return idx
+
+
+# -- validation ----------------------------------------------------------------------------
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _positive(key, x):
+    if not _is_number(x) or x <= 0:
+        raise UserError(f"{key} = {x!r}: must be a number > 0")
+    return float(x)
+
+
+def _nonneg(key, x):
+    if not _is_number(x) or x < 0:
+        raise UserError(f"{key} = {x!r}: must be a number >= 0")
+    return float(x)
+
+
+def _vec3(key, x, nonzero=False):
+    if not (isinstance(x, list) and len(x) == 3 and all(_is_number(c) for c in x)):
+        raise UserError(f"{key} = {x!r}: must be an array of 3 finite numbers, e.g. [0, 1, 0]")
+    if nonzero and not any(c != 0 for c in x):
+        raise UserError(f"{key} = {x!r}: must not be the zero vector")
+    return [float(c) for c in x]
+
+
+def _table(key, x):
+    if not isinstance(x, dict):
+        raise UserError(f"{key} = {x!r}: must be a table")
+    return x
+
+
+def _check_keys(key, table: dict, allowed):
+    for k in table:
+        if k not in allowed:
+            raise UserError(f"unknown key {key}.{k}; allowed keys are {', '.join(sorted(allowed))}")
+
+
+def _merge(defaults: dict, given: dict) -> dict:
+    out = copy.deepcopy(defaults)
+    for k, v in given.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = {**out[k], **v}
+        else:
+            out[k] = v
+    return out
+
+
+def validate(raw: dict, integrator_names=None) -> dict:
+    """Check every key and value, fill defaults, return the normalised scene dict."""
+    _check_keys("scene", raw, TOP_KEYS)
+    sim = _merge(SIM_DEFAULTS, _table("sim", raw.get("sim", {})))
+    _check_keys("sim", sim, SIM_DEFAULTS)
+    if integrator_names is not None and sim["integrator"] not in integrator_names:
+        raise UserError(f"sim.integrator = {sim['integrator']!r}: choose one of {', '.join(integrator_names)}")
+    sim["dt"] = _positive("sim.dt", sim["dt"])
+    sim["duration"] = _positive("sim.duration", sim["duration"])
+    sim["gravity"] = _vec3("sim.gravity", sim["gravity"])
+
+    bodies_raw = raw.get("body", [{}])
+    if isinstance(bodies_raw, dict):
+        bodies_raw = [bodies_raw]
+    if not isinstance(bodies_raw, list) or not bodies_raw:
+        raise UserError("body: the scene needs at least one [[body]] table")
+    bodies = []
+    for b, given in enumerate(bodies_raw):
+        key = f"body.{b}"
+        body = _merge(BODY_DEFAULTS, _table(key, given))
+        _check_keys(key, body, BODY_DEFAULTS)
+        n = body["n"]
+        if not isinstance(n, int) or isinstance(n, bool) or not 2 <= n <= MAX_N:
+            raise UserError(f"{key}.n = {n!r}: must be an integer from 2 to {MAX_N}")
+        body["size"] = _positive(f"{key}.size", body["size"])
+        body["particle_mass"] = _positive(f"{key}.particle_mass", body["particle_mass"])
+        for vk in ("center", "velocity", "angular_velocity"):
+            body[vk] = _vec3(f"{key}.{vk}", body[vk])
+        rot = _table(f"{key}.rotation", body["rotation"])
+        _check_keys(f"{key}.rotation", rot, BODY_DEFAULTS["rotation"])
+        rot["axis"] = _vec3(f"{key}.rotation.axis", rot["axis"], nonzero=True)
+        if not _is_number(rot["degrees"]):
+            raise UserError(f"{key}.rotation.degrees = {rot['degrees']!r}: must be a finite number")
+        rot["degrees"] = float(rot["degrees"])
+        for kind in ("stretch", "shear", "bend"):
+            spring = _table(f"{key}.{kind}", body[kind])
+            _check_keys(f"{key}.{kind}", spring, SPRING_DEFAULT)
+            spring["k"] = _positive(f"{key}.{kind}.k", spring["k"])
+            spring["damping"] = _nonneg(f"{key}.{kind}.damping", spring["damping"])
+        bodies.append(body)
+
+    terrain_raw = _table("terrain", raw.get("terrain", {"kind": "none"}))
+    kind = terrain_raw.get("kind", "plane")
+    if kind not in TERRAIN_KINDS:
+        raise UserError(f"terrain.kind = {kind!r}: choose one of {', '.join(TERRAIN_KINDS)}")
+    terrain = _merge({"kind": kind, **TERRAIN_DEFAULTS[kind]}, terrain_raw)
+    _check_keys(f"terrain ({kind})", terrain, {"kind", *TERRAIN_DEFAULTS[kind]})
+    for k in ("point", "center"):
+        if k in terrain:
+            terrain[k] = _vec3(f"terrain.{k}", terrain[k])
+    if "normal" in terrain:
+        terrain["normal"] = _vec3("terrain.normal", terrain["normal"], nonzero=True)
+    if "radius" in terrain:
+        terrain["radius"] = _positive("terrain.radius", terrain["radius"])
+
+    contact = _merge(CONTACT_DEFAULTS, _table("contact", raw.get("contact", {})))
+    _check_keys("contact", contact, CONTACT_DEFAULTS)
+    r = contact["restitution"]
+    if not _is_number(r) or not 0 <= r <= 1:
+        raise UserError(f"contact.restitution = {r!r}: must be a number in [0, 1]")
+    contact["restitution"] = float(r)
+    contact["friction"] = _nonneg("contact.friction", contact["friction"])
+    contact["epsilon"] = _positive("contact.epsilon", contact["epsilon"])
+
+    render = _merge(RENDER_DEFAULTS, _table("render", raw.get("render", {})))
+    _check_keys("render", render, RENDER_DEFAULTS)
+    fps = render["fps"]
+    if not _is_number(fps) or fps <= 0 or fps > 1000:
+        raise UserError(f"render.fps = {fps!r}: must be a number in (0, 1000]")
+    render["fps"] = float(fps)
+    render["resolution"] = parse_resolution(render["resolution"], "render.resolution")
+    cam = _table("render.camera", render["camera"])
+    _check_keys("render.camera", cam, CAMERA_KEYS)
+    for k in ("position", "lookat"):
+        if k in cam:
+            cam[k] = _vec3(f"render.camera.{k}", cam[k])
+    if "up" in cam:
+        cam["up"] = _vec3("render.camera.up", cam["up"], nonzero=True)
+    if "fov" in cam and (not _is_number(cam["fov"]) or not 1 <= cam["fov"] <= 170):
+        raise UserError(f"render.camera.fov = {cam['fov']!r}: must be a number of degrees in [1, 170]")
+    # [solver]: options of the chosen integrator; the integrator validates names and values.
+    solver = dict(_table("solver", raw.get("solver", {})))
+    return {"sim": sim, "body": bodies, "terrain": terrain, "contact": contact, "render": render, "solver": solver}
+
+
+def parse_resolution(value, key="--resolution") -> list[int]:
+    """``"1280x720"`` or ``[1280, 720]`` -> [width, height] in pixels (16..8192 each)."""
+    if isinstance(value, str):
+        parts = value.lower().split("x")
+        try:
+            value = [int(p) for p in parts]
+        except ValueError:
+            value = None
+    if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+            and all(16 <= v <= 8192 for v in value)):
+        raise UserError(f"{key} = {value!r}: must be WIDTHxHEIGHT with each from 16 to 8192, e.g. 1280x720")
+    return list(value)
+
+
+@dataclass
+class Scene:
+    """A validated scene: ``name`` (file stem), ``path`` and the normalised ``data`` dict."""
+
+    name: str
+    path: Path | None
+    data: dict
+
+    @property
+    def sim(self) -> dict:
+        return self.data["sim"]
+
+
+def load_scene(name_or_path: str, overrides=(), integrator_names=None) -> Scene:
+    """Read, override and validate a scene. Raises ``UserError`` on any problem."""
+    path = resolve_scene_path(name_or_path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as e:
+        raise UserError(f"scene {path}: malformed TOML: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise UserError(f"scene {path}: cannot read: {e}") from None
+    return scene_from_dict(raw, path.stem, path, overrides, integrator_names)
+
+
+def scene_from_dict(raw: dict, name="custom", path=None, overrides=(), integrator_names=None) -> Scene:
+    """Validate a scene given as a dict (as parsed from TOML), after applying overrides."""
+    raw = copy.deepcopy(raw)
+    for assignment in overrides:
+        apply_override(raw, assignment)
+    where = f"scene {path}" if path else f"scene {name}"
+    try:
+        data = validate(raw, integrator_names)
+    except UserError as e:
+        raise UserError(f"{where}: {e}") from None
+    return Scene(name, path, data)

@@ -1,0 +1,208 @@
+"""A scene turned into a running simulation: model, terrain, integrator and state together.
+
+``Simulation`` owns the objects a scene needs and the clock; ``run`` steps to a duration in
+chunks of one output frame, so renderers and state recorders see exact frame times.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .forces import Diagnostics
+from .integrators import REGISTRY, make_integrator
+from .model import BodySpec, ModelBuilder
+from .scene import Scene
+from .terrain import make_terrain
+
+
+def body_spec(body: dict) -> BodySpec:
+    """A validated ``[[body]]`` table as a ``BodySpec``."""
+    return BodySpec(
+        n=body["n"], size=body["size"], particle_mass=body["particle_mass"], center=tuple(body["center"]),
+        rotation_axis=tuple(body["rotation"]["axis"]), rotation_degrees=body["rotation"]["degrees"],
+        velocity=tuple(body["velocity"]), angular_velocity=tuple(body["angular_velocity"]),
+        stretch=(body["stretch"]["k"], body["stretch"]["damping"]),
+        shear=(body["shear"]["k"], body["shear"]["damping"]),
+        bend=(body["bend"]["k"], body["bend"]["damping"]),
+    )
+
+
+def frame_steps(total_steps: int, fps: float, dt: float) -> list[int]:
+    """Step counts at which output frames fall: frame k at the step nearest k / fps.
+
+    Always starts at 0 and ends at ``total_steps`` (the exact final state), strictly increasing.
+    Steps per frame are 1 / (fps dt) with the remainder carried, so frame times never drift.
+    """
+    per_frame = 1.0 / (fps * dt)
+    n_frames = int(math.floor(total_steps / per_frame + 1e-9))
+    steps = sorted({min(int(round(k * per_frame)), total_steps) for k in range(n_frames + 1)} | {0, total_steps})
+    return steps
+
+
+@dataclass
+class RunResult:
+    """What ``Simulation.run`` returns; ``frames`` holds (t, x, v) samples if recorded."""
+
+    steps: int
+    sim_time: float
+    wall_seconds: float
+    diverged: bool
+    diverged_at: float | None
+    diverged_step: int | None
+    frames: list = field(default_factory=list)
+
+
+class Simulation:
+    """Everything one scene needs, built once: ``model``, ``terrain``, ``integrator``, ``state``.
+
+    ``dt`` [s] may be changed between steps (kernel argument); stiffness, damping, gravity and
+    contact coefficients are fields on ``model`` and ``terrain``.
+    """
+
+    def __init__(self, scene: Scene, integrator: str | None = None, dt: float | None = None,
+                 options: dict | None = None):
+        data = scene.data
+        self.scene = scene
+        builder = ModelBuilder(gravity=data["sim"]["gravity"])
+        for body in data["body"]:
+            builder.add_cube(body_spec(body))
+        self.model = builder.finalize()
+        t = data["terrain"]
+        geometry = {k: v for k, v in t.items() if k != "kind"}
+        self.terrain = make_terrain(t["kind"], self.model.n_particles, geometry, **data["contact"])
+        self.integrator_name = integrator or data["sim"]["integrator"]
+        if options is None:
+            options = data.get("solver", {})
+        self.integrator = make_integrator(self.integrator_name, self.model, self.terrain, options)
+        self.diagnostics = Diagnostics(self.model, self.terrain)
+        self.state = self.model.state()
+        self.dt = float(dt if dt is not None else data["sim"]["dt"])
+        self.steps = 0
+        self.diverged_step: int | None = None
+        self.reset()
+
+    # -- clock ---------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """Simulated time [s] (steps x dt; dt changes restart the count from ``time_base``)."""
+        return self.time_base + (self.steps - self.steps_base) * self.dt
+
+    @property
+    def diverged(self) -> bool:
+        return self.diverged_step is not None
+
+    @property
+    def diverged_at(self) -> float | None:
+        """Simulated time [s] at the end of the step that diverged."""
+        return None if self.diverged_step is None else self.time
+
+    def reset(self):
+        """Back to the scene's initial state."""
+        self.state.set(self.model.x0_np, self.model.v0_np)
+        self.terrain.reset(self.state.x)
+        self.integrator.reset()
+        self.steps = 0
+        self.steps_base = 0
+        self.time_base = 0.0
+        self.diverged_step = None
+
+    def set_dt(self, dt: float):
+        """Change the time step [s] from the next step on."""
+        self.time_base = self.time
+        self.steps_base = self.steps
+        self.dt = float(dt)
+
+    def advance(self, n_steps: int) -> int:
+        """Take up to ``n_steps`` steps; returns how many were taken (fewer means diverged)."""
+        if self.diverged:
+            return 0
+        done = self.integrator.advance(self.state, self.dt, n_steps)
+        self.steps += done
+        if done < n_steps:
+            self.diverged_step = self.steps
+        return done
+
+    def measure(self) -> dict:
+        """Energies, centre of mass, max speed, min terrain distance of the current state."""
+        return self.diagnostics.compute(self.state)
+
+    # -- runs ----------------------------------------------------------------------------
+    def run(self, duration: float, fps: float, on_frame=None, record: bool = False, progress=None) -> RunResult:
+        """Step for ``duration`` [s], stopping at each output frame (``fps``) and on divergence.
+
+        ``on_frame(sim)`` is called at t = 0, at every frame and at the final state; with
+        ``record`` the (t, x, v) of each of those is kept in ``RunResult.frames``. ``progress``,
+        if given, is called as ``progress(steps_done, total_steps, sim)``.
+        """
+        total = max(int(round(duration / self.dt)), 1)
+        schedule = frame_steps(total, fps, self.dt)
+        frames = []
+        start = time.perf_counter()
+        base = self.steps
+
+        def visit():
+            if record:
+                x, v = self.state.numpy()
+                frames.append((self.time, x, v))
+            if on_frame is not None:
+                on_frame(self)
+
+        visit()
+        for target in schedule[1:]:
+            want = base + target - self.steps
+            self.advance(want)
+            if self.diverged:
+                if on_frame is not None:
+                    on_frame(self)
+                break
+            visit()
+            if progress is not None:
+                progress(self.steps - base, total, self)
+        wall = time.perf_counter() - start
+        return RunResult(self.steps - base, self.time, wall, self.diverged, self.diverged_at, self.diverged_step, frames)
+
+    def suggest_dt(self) -> float:
+        """A smaller step to try after a divergence: half the current one, rounded down to 2 digits."""
+        d = self.dt / 2
+        exp = math.floor(math.log10(d))
+        return math.floor(d / 10**exp * 10) / 10 * 10**exp
+
+    def summary(self, result: RunResult) -> dict:
+        """The run summary (what ``--summary`` writes)."""
+        m = self.model
+        final = self.measure()
+        return {
+            "scene": self.scene.name,
+            "integrator": self.integrator_name,
+            "dt": self.dt,
+            "steps": result.steps,
+            "sim_time": result.sim_time,
+            "particles": m.n_particles,
+            "springs": m.spring_counts(),
+            "bodies": len(m.bodies),
+            "terrain": self.terrain.kind,
+            "diverged": result.diverged,
+            "diverged_at": result.diverged_at,
+            "wall_seconds": result.wall_seconds,
+            "steps_per_second": result.steps / result.wall_seconds if result.wall_seconds > 0 else None,
+            "integrator_stats": self.integrator.stats(),
+            "final": {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in final.items()},
+        }
+
+
+def integrator_names() -> list[str]:
+    return list(REGISTRY)
+
+
+def states_arrays(frames: list, real) -> dict:
+    """(t, x, v) samples -> arrays for ``np.savez``: t [frames], x and v [frames, particles, 3]."""
+    if not frames:
+        return {"t": np.zeros(0), "x": np.zeros((0, 0, 3), real), "v": np.zeros((0, 0, 3), real)}
+    return {
+        "t": np.array([f[0] for f in frames], dtype=np.float64),
+        "x": np.stack([f[1] for f in frames]).astype(real, copy=False),
+        "v": np.stack([f[2] for f in frames]).astype(real, copy=False),
+    }
