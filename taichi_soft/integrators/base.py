@@ -91,7 +91,7 @@ class Integrator:
 
     def step(self, state, dt: float) -> bool:
         """One step; returns False if it diverged."""
-        return self.advance(state, dt, 1) == 1
+        return self.advance(state, dt, 1) == 1 and not self.diverged
 
     @property
     def diverged(self) -> bool:

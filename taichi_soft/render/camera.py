@@ -1,0 +1,187 @@
+"""Cameras: the scene's ``[render.camera]``, per-terrain defaults that frame the action, and the
+look-at / perspective matrices GGUI uses (so tests and tools can project points to pixels).
+
+Pure numpy: nothing here needs Taichi or Vulkan.
+
+Conventions (GGUI's): right-handed world, y up; ``fov`` is the *vertical* field of view in
+degrees; pixel (0, 0) is the top-left corner of an image array ``img[row, col]``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+DEFAULT_FOV = 40.0  # degrees, vertical
+Z_NEAR, Z_FAR = 0.1, 2000.0  # clipping planes [m]; far enough for a 200 m terrain quad
+
+# Default viewing angles per terrain: (azimuth, elevation) in degrees. Azimuth turns from the
+# viewer-facing direction of the terrain (+z for a level plane) towards +x (level plane) or
+# uphill (tilted plane); elevation is measured from the terrain's plane (or the horizontal).
+_VIEW_ANGLES = {
+    "none": (30.0, 20.0),
+    "plane": (30.0, 22.0),
+    "tilted_plane": (-25.0, 30.0),
+    "sphere": (30.0, 15.0),
+    "bowl": (30.0, 42.0),
+}
+# Terrains where the bodies travel far (a 45-degree slope: 30 m in 4 s) get a camera that
+# follows their centre of mass instead of a fixed wide shot in which the cube would be tiny.
+_FOLLOW = {"tilted_plane"}
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A pinhole camera: ``position`` and ``lookat`` [m], ``up`` (any length), vertical ``fov`` [deg].
+
+    With ``follow`` the camera keeps its offset ``position - lookat`` and re-aims at the bodies'
+    centre of mass each frame (see ``following``).
+    """
+
+    position: tuple
+    lookat: tuple
+    up: tuple = (0.0, 1.0, 0.0)
+    fov: float = DEFAULT_FOV
+    follow: bool = False
+
+    def following(self, center) -> "CameraSpec":
+        """The camera moved so that it looks at ``center`` [m] from the same offset."""
+        if not self.follow:
+            return self
+        c = np.asarray(center, dtype=np.float64)
+        if not np.all(np.isfinite(c)):
+            return self
+        offset = np.subtract(self.position, self.lookat)
+        return replace(self, position=tuple(c + offset), lookat=tuple(c))
+
+
+# -- defaults ---------------------------------------------------------------------------------
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _body_spheres(scene_data: dict) -> list[tuple[np.ndarray, float]]:
+    """Bounding sphere (centre [m], radius [m]) of every body at rest."""
+    return [(np.asarray(b["center"], dtype=np.float64), 0.5 * math.sqrt(3.0) * b["size"]) for b in scene_data["body"]]
+
+
+def plane_basis(normal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n, level, uphill): the plane's unit normal and two unit in-plane directions.
+
+    ``level`` is horizontal; ``uphill`` points up the slope. For a level plane they are +z and +x
+    (so the default view of a level plane looks from +z, turned towards +x).
+    """
+    n = _unit(normal)
+    level = np.cross(n, [0.0, 1.0, 0.0])
+    if np.linalg.norm(level) < 1e-6:  # level plane (or upside down): any horizontal pair
+        return n, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    level = _unit(level)
+    uphill = _unit(np.cross(level, n))
+    if uphill[1] < 0:
+        uphill = -uphill
+    # Seen from the ``level`` side, let the slope run down to the right of the image (the way a
+    # level plane's +x does from +z): the image's right is (-level) x up.
+    if np.dot(np.cross(-level, [0.0, 1.0, 0.0]), uphill) > 0:
+        level = -level
+    return n, level, uphill
+
+
+def _enclosing_sphere(spheres) -> tuple[np.ndarray, float]:
+    """A sphere containing all given spheres: centred on their bounding box."""
+    lo = np.min([c - r for c, r in spheres], axis=0)
+    hi = np.max([c + r for c, r in spheres], axis=0)
+    center = 0.5 * (lo + hi)
+    radius = max(np.linalg.norm(c - center) + r for c, r in spheres)
+    return center, radius
+
+
+def default_camera(scene_data: dict, aspect: float) -> CameraSpec:
+    """A camera for a scene without ``[render.camera]``: everything that matters is in frame.
+
+    The bodies' start, and the terrain where they land (the footprint on a plane, the ball, the
+    bowl), are wrapped in one sphere; the camera looks at its centre from the terrain's default
+    angles at the distance where the sphere fits the narrower of the two fields of view.
+    ``aspect`` = width / height of the image.
+    """
+    terrain = scene_data["terrain"]
+    kind = terrain["kind"]
+    bodies = _body_spheres(scene_data)
+    spheres = list(bodies)
+    n, level, uphill = plane_basis(terrain.get("normal", [0.0, 1.0, 0.0]))
+    if kind == "plane":
+        p = np.asarray(terrain["point"], dtype=np.float64)
+        # Where each body lands: its centre dropped onto the plane; it squashes and spreads.
+        spheres += [(c - np.dot(c - p, n) * n, 1.3 * r) for c, r in bodies]
+    elif kind in ("sphere", "bowl"):
+        spheres.append((np.asarray(terrain["center"], dtype=np.float64), terrain["radius"]))
+    elif kind == "tilted_plane":
+        # Followed: frame one body's neighbourhood (it rolls and tumbles as it slides).
+        spheres = [(c, 1.6 * r) for c, r in bodies]
+    center, radius = _enclosing_sphere(spheres)
+    if kind == "none":
+        radius *= 1.2  # free bodies oscillate about their start
+
+    azimuth, elevation = (math.radians(a) for a in _VIEW_ANGLES[kind])
+    if kind == "tilted_plane":
+        frame_n, frame_a, frame_b = n, level, uphill
+    else:  # level reference frame: elevation above the horizontal
+        frame_n, frame_a, frame_b = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    direction = (math.cos(elevation) * (math.cos(azimuth) * frame_a + math.sin(azimuth) * frame_b)
+                 + math.sin(elevation) * frame_n)
+    half_v = math.radians(DEFAULT_FOV) / 2
+    half_h = math.atan(math.tan(half_v) * aspect)
+    distance = radius / math.sin(min(half_v, half_h))
+    position = center + distance * _unit(direction)
+    return CameraSpec(tuple(position), tuple(center), (0.0, 1.0, 0.0), DEFAULT_FOV, kind in _FOLLOW)
+
+
+def scene_camera(scene_data: dict, aspect: float, follow: bool | None = None) -> CameraSpec:
+    """The scene's ``[render.camera]`` keys over the default camera; ``follow`` overrides tracking.
+
+    A scene that sets ``position`` or ``lookat`` gets a fixed camera unless ``follow`` is True.
+    """
+    cam = default_camera(scene_data, aspect)
+    given = scene_data["render"].get("camera", {})
+    if given:
+        cam = replace(cam, follow=False, **{k: (tuple(v) if isinstance(v, list) else float(v)) for k, v in given.items()})
+    if follow is not None:
+        cam = replace(cam, follow=follow)
+    return cam
+
+
+# -- matrices ---------------------------------------------------------------------------------
+def view_matrix(cam: CameraSpec) -> np.ndarray:
+    """World -> camera 4x4 matrix (camera looks down -z, y up), column-vector convention."""
+    eye = np.asarray(cam.position, dtype=np.float64)
+    forward = _unit(np.subtract(cam.lookat, eye))
+    right = _unit(np.cross(forward, cam.up))
+    up = np.cross(right, forward)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3] = right, up, -forward
+    m[:3, 3] = -m[:3, :3] @ eye
+    return m
+
+
+def projection_matrix(cam: CameraSpec, aspect: float) -> np.ndarray:
+    """Camera -> clip 4x4 perspective matrix (OpenGL convention, vertical ``fov``)."""
+    f = 1.0 / math.tan(math.radians(cam.fov) / 2)
+    m = np.zeros((4, 4))
+    m[0, 0], m[1, 1] = f / aspect, f
+    m[2, 2] = (Z_FAR + Z_NEAR) / (Z_NEAR - Z_FAR)
+    m[2, 3] = 2 * Z_FAR * Z_NEAR / (Z_NEAR - Z_FAR)
+    m[3, 2] = -1.0
+    return m
+
+
+def project(points, cam: CameraSpec, width: int, height: int) -> np.ndarray:
+    """Pixel coordinates (col, row) of world ``points`` [m], shape [n, 3] -> [n, 2] float.
+
+    Row 0 is the top of the image. Points behind the camera come back as NaN.
+    """
+    p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    clip = (projection_matrix(cam, width / height) @ view_matrix(cam) @ np.c_[p, np.ones(len(p))].T).T
+    w = clip[:, 3:4]
+    ndc = np.where(w > 0, clip[:, :2] / np.where(w > 0, w, 1.0), np.nan)
+    return np.c_[(ndc[:, 0] + 1) * 0.5 * width, (1 - ndc[:, 1]) * 0.5 * height]

@@ -1,0 +1,197 @@
+"""Triangle meshes to draw: the terrain (numpy, built once) and the bodies' surfaces (on the device).
+
+Terrain meshes match the collision shapes of ``taichi_soft.terrain`` exactly: vertices lie on the
+plane / sphere / bowl surface, normals are the analytic ones. A plane is infinite, so it is drawn
+as a finite checkerboard square around where the bodies can get to within the run.
+
+``SurfaceMesh`` holds every body's outer surface (the lattice's outward-wound boundary
+triangles) with its own compact vertex numbering; ``update(x)`` gathers the surface particles'
+positions and recomputes smooth vertex normals on the device each frame.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from .camera import plane_basis
+
+# Colours (linear RGB in [0, 1]); GGUI writes them to the image without gamma.
+CHECKER = ((0.78, 0.80, 0.82), (0.64, 0.67, 0.71))  # terrain tiles, low contrast against aliasing
+SHELL_INSIDE = ((0.70, 0.80, 0.86), (0.58, 0.68, 0.76))
+SHELL_OUTSIDE = ((0.42, 0.47, 0.55), (0.36, 0.41, 0.49))
+BODY_COLORS = ((0.95, 0.45, 0.15), (0.15, 0.65, 0.75), (0.60, 0.35, 0.80), (0.35, 0.70, 0.30), (0.90, 0.75, 0.15))
+
+
+@dataclass
+class TriMesh:
+    """A static triangle mesh: vertices [n, 3] m, unit normals [n, 3], per-vertex colours [n, 3],
+    triangles [m, 3] vertex indices wound counter-clockwise seen from the normal's side."""
+
+    vertices: np.ndarray
+    normals: np.ndarray
+    colors: np.ndarray
+    triangles: np.ndarray
+
+
+def _checker_grid(position, normal, nu: int, nv: int, colors) -> TriMesh:
+    """A (u, v) in [0, 1]^2 surface cut into nu x nv cells, alternately coloured.
+
+    ``position(u, v)`` and ``normal(u, v)`` take arrays and return [..., 3]. Cells do not share
+    vertices so that each cell keeps one flat colour.
+    """
+    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    corners = [(0, 0), (1, 0), (1, 1), (0, 1)]
+    u = np.stack([(i + a) / nu for a, _ in corners], axis=1)  # [cells, 4]
+    v = np.stack([(j + b) / nv for _, b in corners], axis=1)
+    verts = position(u, v)  # [cells, 4, 3]
+    norms = normal(u, v)
+    cells = len(i)
+    base = 4 * np.arange(cells)[:, None]
+    tris = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]])
+    # Wind each triangle counter-clockwise as seen from its normal's side, whatever the
+    # parametrisation's orientation, so back-face culling keeps the right side.
+    flat_v = verts.reshape(-1, 3)
+    flat_n = norms.reshape(-1, 3)
+    face_n = np.cross(flat_v[tris[:, 1]] - flat_v[tris[:, 0]], flat_v[tris[:, 2]] - flat_v[tris[:, 0]])
+    flip = np.einsum("ij,ij->i", face_n, flat_n[tris].sum(axis=1)) < 0
+    tris[flip] = tris[flip][:, ::-1]
+    parity = ((i + j) % 2).repeat(4)
+    cols = np.asarray(colors, dtype=np.float64)[parity]
+    return TriMesh(flat_v, flat_n, cols, tris)
+
+
+def plane_mesh(point, normal, focus, half_size: float) -> TriMesh:
+    """Square of side 2 ``half_size`` [m] on the plane, centred where ``focus`` [m] projects.
+
+    Tiles are anchored to ``point`` so they stay put in the world wherever the square is cut.
+    """
+    n, a, b = plane_basis(normal)
+    p = np.asarray(point, dtype=np.float64)
+    cell = 1.0 if half_size <= 30 else 2.0 ** math.ceil(math.log2(half_size / 30))
+    f = np.asarray(focus, dtype=np.float64) - p
+    # Snap the square's corner to the tile grid so the checker pattern is anchored at ``point``.
+    ca = math.floor((np.dot(f, a) - half_size) / cell) * cell
+    cb = math.floor((np.dot(f, b) - half_size) / cell) * cell
+    cells = int(math.ceil(2 * half_size / cell))
+
+    def position(u, v):
+        return p + (ca + u[..., None] * cells * cell) * a + (cb + v[..., None] * cells * cell) * b
+
+    def normals(u, v):
+        return np.broadcast_to(n, u.shape + (3,))
+
+    return _checker_grid(position, normals, cells, cells, CHECKER)
+
+
+def _sphere_patch(center, radius, lat_lo, lat_hi, n_lon, n_lat, inward, colors) -> TriMesh:
+    """Part of a sphere between latitudes ``lat_lo`` and ``lat_hi`` [rad] (0 = equator)."""
+    c = np.asarray(center, dtype=np.float64)
+    sign = -1.0 if inward else 1.0
+
+    def direction(u, v):
+        lon = 2 * math.pi * u
+        lat = lat_lo + (lat_hi - lat_lo) * v
+        return np.stack([np.cos(lat) * np.cos(lon), np.sin(lat), np.cos(lat) * np.sin(lon)], axis=-1)
+
+    return _checker_grid(lambda u, v: c + radius * direction(u, v), lambda u, v: sign * direction(u, v),
+                         n_lon, n_lat, colors)
+
+
+def sphere_mesh(center, radius) -> TriMesh:
+    """The whole ball, seen from outside. 96 x 48 cells: the flat facets sag at most
+    r (1 - cos(pi / 96)) = 0.05 % of r below the true sphere the bodies rest on."""
+    return _sphere_patch(center, radius, -math.pi / 2, math.pi / 2, 96, 48, False, CHECKER)
+
+
+def bowl_meshes(center, radius) -> list[TriMesh]:
+    """The bowl's lower hemisphere as two one-sided shells: the inside (lit from within) and the
+    outside. Two meshes rather than GGUI's ``two_sided`` so each side has its own normal and colour."""
+    args = (center, radius, -math.pi / 2, 0.0, 96, 24)
+    return [_sphere_patch(*args, True, SHELL_INSIDE), _sphere_patch(*args, False, SHELL_OUTSIDE)]
+
+
+def plane_half_size(scene_data: dict, normal) -> float:
+    """Half side [m] of the drawn plane: as far as a body could get along it within the run.
+
+    Bound: start speed times duration plus free sliding under the in-plane part of gravity
+    (frictionless), plus the body's size and a margin; capped at 1 km.
+    """
+    duration = scene_data["sim"]["duration"]
+    g = np.asarray(scene_data["sim"]["gravity"], dtype=np.float64)
+    n = plane_basis(normal)[0]
+    g_along = np.linalg.norm(g - np.dot(g, n) * n)
+    reach = max(np.linalg.norm(b["velocity"]) * duration + b["size"] for b in scene_data["body"])
+    return float(min(20.0 + reach + 0.5 * g_along * duration**2, 1000.0))
+
+
+def terrain_meshes(scene_data: dict) -> list[TriMesh]:
+    """The meshes that draw the scene's terrain (none for ``kind = "none"``)."""
+    t = scene_data["terrain"]
+    kind = t["kind"]
+    if kind in ("plane", "tilted_plane"):
+        focus = np.mean([b["center"] for b in scene_data["body"]], axis=0)
+        return [plane_mesh(t["point"], t["normal"], focus, plane_half_size(scene_data, t["normal"]))]
+    if kind == "sphere":
+        return [sphere_mesh(t["center"], t["radius"])]
+    if kind == "bowl":
+        return bowl_meshes(t["center"], t["radius"])
+    return []
+
+
+# -- bodies -------------------------------------------------------------------------------------
+@ti.data_oriented
+class SurfaceMesh:
+    """Every body's outer surface on the device, in f32 (what GGUI draws and exporters write).
+
+    Fields: ``vertices``, ``normals`` [n_vertices] vec3 (m, unit); ``indices`` [3 n_triangles]
+    (triangle corners into ``vertices``, outward winding); ``vertex_particle`` [n_vertices] the
+    model particle each vertex follows. ``bodies[b]`` = (first vertex, vertex count, first index,
+    index count) of body b.
+    """
+
+    def __init__(self, model):
+        particles, triangles, self.bodies = [], [], []
+        nv = ni = 0
+        for body in model.bodies:
+            used, local = np.unique(body.surface, return_inverse=True)
+            particles.append(used)
+            triangles.append(local.reshape(-1, 3) + nv)
+            self.bodies.append((nv, len(used), ni, local.size))
+            nv += len(used)
+            ni += local.size
+        self.n_vertices, self.n_triangles = nv, ni // 3
+        self.triangles_np = np.concatenate(triangles).astype(np.int32)  # [n_triangles, 3]
+        self.vertex_particle = ti.field(ti.i32, nv)
+        self.vertex_particle.from_numpy(np.concatenate(particles).astype(np.int32))
+        self.vertices = ti.Vector.field(3, ti.f32, nv)
+        self.normals = ti.Vector.field(3, ti.f32, nv)
+        self.indices = ti.field(ti.i32, 3 * self.n_triangles)
+        self.indices.from_numpy(self.triangles_np.ravel())
+
+    @ti.kernel
+    def update(self, x: ti.template()):
+        """Copy the surface particles' positions from ``x`` and recompute vertex normals.
+
+        A vertex normal is the area-weighted mean of its triangles' normals (the unnormalised
+        cross product is twice the area): smooth shading that follows the body as it deforms.
+        """
+        for v in range(self.n_vertices):
+            self.vertices[v] = ti.cast(x[self.vertex_particle[v]], ti.f32)
+            self.normals[v] = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
+        for t in range(self.n_triangles):
+            a, b, c = self.indices[3 * t], self.indices[3 * t + 1], self.indices[3 * t + 2]
+            n = (self.vertices[b] - self.vertices[a]).cross(self.vertices[c] - self.vertices[a])
+            self.normals[a] += n  # atomic: triangles sharing a vertex add concurrently
+            self.normals[b] += n
+            self.normals[c] += n
+        for v in range(self.n_vertices):
+            length = self.normals[v].norm()
+            if length > 0:
+                self.normals[v] /= length
+
+    def numpy(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices [n_vertices, 3] m, normals [n_vertices, 3]) as float32 copies."""
+        return self.vertices.to_numpy(), self.normals.to_numpy()

@@ -1,0 +1,42 @@
+"""Shared fixtures: one Taichi runtime per test session (CPU, f64), scene helpers, CLI runner."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session", autouse=True)
+def taichi_runtime():
+    """Taichi can be initialised once per process; every in-process test shares this CPU f64 runtime."""
+    from taichi_soft import runtime
+
+    return runtime.init("cpu", "f64")
+
+
+@pytest.fixture
+def make_sim():
+    """``make_sim(scene="plane", sets=[...], **sim_kwargs)`` -> a ``Simulation``."""
+    from taichi_soft.integrators import names
+    from taichi_soft.scene import load_scene
+    from taichi_soft.simulation import Simulation
+
+    def make(scene="plane", sets=(), **kwargs):
+        return Simulation(load_scene(scene, list(sets), integrator_names=names()), **kwargs)
+
+    return make
+
+
+def run_cli(*args, cwd=ROOT, timeout=600):
+    """Run ``python main.py ARGS`` in a subprocess; returns the CompletedProcess (text)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.run([sys.executable, str(ROOT / "main.py"), *map(str, args)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def cli():
+    return run_cli

@@ -1,0 +1,65 @@
+"""Small builders shared by the physics tests (no Taichi initialisation here)."""
+import numpy as np
+import taichi as ti
+
+from taichi_soft.forces import ForceEvaluator
+from taichi_soft.integrators import make_integrator
+from taichi_soft.model import BodySpec, ModelBuilder
+from taichi_soft.terrain import make_terrain
+
+
+def build(n=4, size=1.5, gravity=(0.0, 0.0, 0.0), terrain="none", geometry=None, contact=None, **body):
+    """(model, terrain) for one cube; body keyword arguments go to ``BodySpec``."""
+    b = ModelBuilder(gravity=gravity)
+    b.add_cube(BodySpec(n=n, size=size, **body))
+    model = b.finalize()
+    c = dict(restitution=0.8, friction=0.3, epsilon=0.01)
+    c.update(contact or {})
+    return model, make_terrain(terrain, model.n_particles, geometry or {}, **c)
+
+
+def stretched(model, factor=(1.1, 0.95, 1.0)):
+    """Initial positions [m] stretched about the centre of mass by per-axis ``factor``."""
+    x0 = model.x0_np
+    com = x0.mean(axis=0)
+    return com + (x0 - com) * np.asarray(factor)
+
+
+def simulate(model, terrain, integrator, dt, steps, x0=None, v0=None, options=None):
+    """Run ``steps`` steps; returns (x, v, steps_done) as numpy arrays."""
+    integ = make_integrator(integrator, model, terrain, options)
+    state = model.state()
+    state.set(model.x0_np if x0 is None else x0, model.v0_np if v0 is None else v0)
+    terrain.reset(state.x)
+    done = integ.advance(state, dt, steps)
+    x, v = state.numpy()
+    return x, v, done
+
+
+def spring_energy(model, x) -> float:
+    """Sum of 1/2 k (|x_a - x_b| - r)^2 [J] over all springs, in numpy."""
+    a, b = model.pairs_np[:, 0], model.pairs_np[:, 1]
+    k = model.group_k.to_numpy()[model.group_np]
+    length = np.linalg.norm(x[a] - x[b], axis=1)
+    return float(0.5 * np.sum(k * (length - model.rest_np) ** 2))
+
+
+def total_energy(model, x, v) -> float:
+    """Kinetic + gravity + spring energy [J]."""
+    g = model.gravity[None].to_numpy()
+    return float(0.5 * np.sum(model.mass_np[:, None] * v * v) - np.sum(model.mass_np * (x @ g)) + spring_energy(model, x))
+
+
+@ti.kernel
+def _eval(fe: ti.template(), x: ti.template(), v: ti.template(), a: ti.template()):
+    fe.compute(x, v, 1e-3, a)
+
+
+def accelerations(model, terrain, x, v, strategy="per_spring"):
+    """Acceleration [m/s^2] of every particle at (x, v), through the engine's force evaluator."""
+    fe = ForceEvaluator(model, terrain, strategy)
+    state = model.state()
+    state.set(x, v)
+    a = ti.Vector.field(3, float, model.n_particles)
+    _eval(fe, state.x, state.v, a)
+    return a.to_numpy()
