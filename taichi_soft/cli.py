@@ -16,6 +16,9 @@ from pathlib import Path
 from .errors import UserError
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 2, 3
+# The main job (`python main.py`): the assignment's cube dropped on the plane.
+DEFAULT_SCENE, DEFAULT_INTEGRATOR = "plane", "rk4"
+DEFAULT_COMPARE = "explicit_euler,semi_implicit_euler,midpoint,rk4"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -31,10 +34,30 @@ def check_output_path(path: str | None, flag: str, suffixes=None) -> Path | None
     if path is None:
         return None
     p = Path(path)
-    if suffixes and p.suffix.lower() not in suffixes:
-        raise UserError(f"{flag} {path}: expected a file ending in {' or '.join(suffixes)}")
     if p.is_dir():
         raise UserError(f"{flag} {path}: is a directory, expected a file path")
+    if suffixes and p.suffix.lower() not in suffixes:
+        raise UserError(f"{flag} {path}: expected a file ending in {' or '.join(suffixes)}")
+    _check_parent(p, flag, path)
+    if p.exists() and not os.access(p, os.W_OK):
+        raise UserError(f"{flag} {path}: file exists and is not writable")
+    return p
+
+
+def check_output_dir(path: str | None, flag: str) -> Path | None:
+    """Like ``check_output_path`` for a folder of numbered files (written beside it, then moved in)."""
+    if path is None:
+        return None
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise UserError(f"{flag} {path}: exists and is not a directory")
+    _check_parent(p, flag, path)
+    if p.exists() and not os.access(p, os.W_OK):
+        raise UserError(f"{flag} {path}: directory is not writable")
+    return p
+
+
+def _check_parent(p: Path, flag: str, path: str):
     parent = p.parent if str(p.parent) else Path(".")
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -42,9 +65,6 @@ def check_output_path(path: str | None, flag: str, suffixes=None) -> Path | None
         raise UserError(f"{flag} {path}: cannot create directory {parent}: {e.strerror}") from None
     if not os.access(parent, os.W_OK):
         raise UserError(f"{flag} {path}: directory {parent} is not writable")
-    if p.exists() and not os.access(p, os.W_OK):
-        raise UserError(f"{flag} {path}: file exists and is not writable")
-    return p
 
 
 def write_atomic(path: Path, write) -> None:
@@ -75,17 +95,67 @@ def finite_or_none(obj):
 
 
 # -- commands --------------------------------------------------------------------------------
-def add_scene_args(p: argparse.ArgumentParser, integrator_default_help="the scene's"):
+def add_scene_args(p: argparse.ArgumentParser, integrator_default_help="the scene's", integrator=True):
     from .runtime import ARCHS, PRECISIONS
 
     p.add_argument("--scene", default="plane", help="scene name in scenes/ or a path to a .toml file (default: plane)")
-    p.add_argument("--integrator", help=f"integrator name (default: {integrator_default_help} sim.integrator); see `list`")
+    if integrator:
+        p.add_argument("--integrator", help=f"integrator name (default: {integrator_default_help} sim.integrator); see `list`")
     p.add_argument("--dt", type=_float_arg("--dt"), help="time step [s] (default: the scene's sim.dt)")
     p.add_argument("--duration", type=_float_arg("--duration"), help="simulated time [s] (default: the scene's sim.duration)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key by dotted path, e.g. body.0.stretch.k=5000 (repeatable)")
     p.add_argument("--arch", default="cpu", choices=None, help=f"backend: {', '.join(ARCHS)} (default: cpu)")
     p.add_argument("--precision", default="f64", help=f"float precision: {', '.join(PRECISIONS)} (default: f64)")
+
+
+def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
+    """Flags for offscreen rendering (docs/rendering.md)."""
+    from .render.export import MESH_FORMATS
+
+    g = p.add_argument_group("rendering (offscreen GGUI; needs a Vulkan device, Mesa's lavapipe will do)")
+    g.add_argument("--video", metavar="PATH", help="write a video: .mp4 (H.264, yuv420p) or .gif")
+    g.add_argument("--frames", metavar="DIR", help="write numbered PNGs DIR/frame_00000.png ...")
+    g.add_argument("--fps", type=_float_arg("--fps"), help="output frames per simulated second (default: the scene's render.fps)")
+    g.add_argument("--resolution", type=_resolution_arg, metavar="WxH",
+                   help="frame size in pixels, e.g. 1280x720 (default: the scene's render.resolution)")
+    g.add_argument("--particles", action="store_true", help="draw every particle as a small sphere")
+    g.add_argument("--springs", action="store_true", help="draw springs: stretch blue, shear green, bend magenta")
+    g.add_argument("--no-surface", dest="surface", action="store_false", help="do not draw the bodies' surfaces")
+    g.add_argument("--follow", action=argparse.BooleanOptionalAction, default=None,
+                   help="camera tracks the bodies' centre of mass (default: only on tilted_plane, where they slide far)")
+    g.add_argument("--no-overlay", dest="overlay", action="store_false", help="leave the text overlay out of frames")
+    if mesh_export:
+        g.add_argument("--export-mesh", metavar="DIR",
+                       help="write each frame's surface mesh to DIR/mesh_00000.<fmt>, all bodies merged in one "
+                            "file per frame (PLY: a 'body' index per vertex; OBJ: one object per body); "
+                            "needs no Vulkan")
+        g.add_argument("--mesh-format", choices=MESH_FORMATS, default="ply", help="mesh file format (default: ply)")
+
+
+def render_options_from_args(args, scene):
+    """Validated ``RenderOptions``: output paths checked (and parents created) before any simulation."""
+    from .render.outputs import VIDEO_SUFFIXES, check_video_size
+    from .render.recorder import RenderOptions
+
+    render = scene.data["render"]
+    width, height = render["resolution"]
+    video = check_output_path(args.video, "--video", VIDEO_SUFFIXES)
+    check_video_size(video, width, height)
+    return RenderOptions(
+        video=video, frames=check_output_dir(args.frames, "--frames"),
+        mesh_dir=check_output_dir(getattr(args, "export_mesh", None), "--export-mesh"),
+        mesh_format=getattr(args, "mesh_format", "ply"), fps=render["fps"], resolution=(width, height),
+        surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay)
+
+
+def _resolution_arg(text):
+    from .scene import parse_resolution
+
+    try:
+        return parse_resolution(text)
+    except UserError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected WIDTHxHEIGHT, each from 16 to 8192, e.g. 1280x720") from None
 
 
 def _float_arg(flag):
@@ -103,7 +173,8 @@ def load_scene_from_args(args):
     from .scene import load_scene
 
     overrides = list(args.set)
-    for flag, key in (("integrator", "sim.integrator"), ("dt", "sim.dt"), ("duration", "sim.duration")):
+    for flag, key in (("integrator", "sim.integrator"), ("dt", "sim.dt"), ("duration", "sim.duration"),
+                      ("fps", "render.fps"), ("resolution", "render.resolution")):
         value = getattr(args, flag, None)
         if value is not None:
             overrides.append(f"{key}={json.dumps(value) if isinstance(value, str) else repr(value)}")
@@ -141,14 +212,33 @@ def cmd_run(args) -> int:
     scene = load_scene_from_args(args)
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
+    render_options = render_options_from_args(args, scene)
     start_taichi(args)
     sim = Simulation(scene)
     duration = scene.sim["duration"]
     fps = scene.data["render"]["fps"]
-    bar = Progress(int(round(duration / sim.dt)), f"{scene.name}/{sim.integrator_name}")
-    result = sim.run(duration, fps, record=states_path is not None,
-                     progress=lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s"))
-    bar.close()
+    label = f"{scene.name}/{sim.integrator_name}"
+    recorder, step_progress = None, None
+    if render_options.any:
+        from .render.recorder import FrameRecorder, frame_count
+
+        # Opens the offscreen window first: no Vulkan fails here, before any simulation.
+        n_frames = frame_count(duration, sim.dt, fps)
+        bar = Progress(n_frames, label)
+        recorder = FrameRecorder(sim, render_options,
+                                 progress=lambda k, s: bar.update(k, f"frame {k}/{n_frames} t={s.time:6.3f}s"))
+    else:
+        bar = Progress(int(round(duration / sim.dt)), label)
+        step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
+    try:
+        result = sim.run(duration, fps, on_frame=recorder, record=states_path is not None, progress=step_progress)
+    except BaseException:
+        if recorder is not None:
+            recorder.abort()
+        raise
+    finally:
+        bar.close()
+    written = recorder.finish() if recorder is not None else []
     summary = sim.summary(result)
     if summary_path:
         text = json.dumps(finite_or_none(summary), indent=2)
@@ -157,6 +247,7 @@ def cmd_run(args) -> int:
         arrays = states_arrays(result.frames, sim.model.real)
         write_atomic(states_path, lambda tmp: np.savez(open(tmp, "wb"), **arrays))
     if result.diverged:
+        _print_outputs(zip(("video", "frames", "meshes"), _render_paths(render_options)))
         print(f"diverged at t = {result.diverged_at:.4f} s (step {result.diverged_step}) with {sim.integrator_name} "
               f"at dt = {sim.dt:g} s; try --dt {sim.suggest_dt():g} or a more stable integrator", file=sys.stderr)
         return EXIT_DIVERGED
@@ -165,9 +256,65 @@ def cmd_run(args) -> int:
     print(f"{scene.name}/{sim.integrator_name}: {result.steps} steps of {sim.dt:g} s = {result.sim_time:.3f} s simulated "
           f"in {result.wall_seconds:.2f} s wall ({summary['steps_per_second']:.0f} steps/s); "
           f"final centre of mass ({com}), kinetic energy {f['kinetic_energy']:.3g} J")
-    for label, path in (("summary", summary_path), ("states", states_path)):
+    _print_outputs([("summary", summary_path), ("states", states_path),
+                    *zip(("video", "frames", "meshes"), _render_paths(render_options))])
+    assert len(written) == sum(p is not None for p in _render_paths(render_options))
+    return EXIT_OK
+
+
+def _render_paths(options) -> list:
+    return [options.video, options.frames, options.mesh_dir]
+
+
+def _print_outputs(labelled):
+    for label, path in labelled:
         if path:
             print(f"{label}: {path}")
+
+
+def parse_integrator_list(text: str) -> list[str]:
+    """``"explicit_euler,rk4"`` -> names, each registered, no repeats; else ``UserError``."""
+    from .integrators import names
+
+    chosen = [n.strip() for n in text.split(",") if n.strip()]
+    known = names()
+    for n in chosen:
+        if n not in known:
+            raise UserError(f"--integrators: unknown integrator {n!r}; choose from: {', '.join(known)}")
+    if not chosen or len(set(chosen)) != len(chosen):
+        raise UserError(f"--integrators {text!r}: give distinct names separated by commas, e.g. explicit_euler,rk4")
+    return chosen
+
+
+def cmd_compare(args) -> int:
+    from .progress import Progress
+
+    integrators = parse_integrator_list(args.integrators)
+    scene = load_scene_from_args(args)
+    if args.video is None and args.frames is None:
+        args.video = f"out/compare-{scene.name}.mp4"
+    render_options = render_options_from_args(args, scene)
+    start_taichi(args)
+    from .render.compare import Comparison
+
+    comparison = Comparison(scene, integrators, render_options)
+    bar = Progress(1, f"{scene.name}: {', '.join(integrators)}")
+    try:
+        results = comparison.run(scene.sim["duration"], progress=lambda k, n, t: (
+            setattr(bar, "total", n), bar.update(k, f"frame {k}/{n} t={t:6.3f}s")))
+    except BaseException:
+        comparison.abort()
+        raise
+    finally:
+        bar.close()
+    comparison.finish()
+    for r in results:
+        if r.diverged_at is not None:
+            state = f"diverged at t = {r.diverged_at:.4f} s (step {r.diverged_step})"
+        else:
+            state = f"ran to t = {r.final_time:.3f} s, final energy {r.final_energy:.6g} J"
+        print(f"{r.integrator:22s} dt = {comparison.dt:g} s: {state}")
+    _print_outputs(zip(("video", "frames"), (render_options.video, render_options.frames)))
     return EXIT_OK
 
 
@@ -178,7 +325,14 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_args(p_run)
     p_run.add_argument("--summary", help="write a JSON run summary here")
     p_run.add_argument("--states", help="write sampled states (t, x, v) to this .npz")
+    add_render_args(p_run)
     p_run.set_defaults(func=cmd_run)
+    p_cmp = sub.add_parser("compare", help="run one scene with several integrators at the same dt; write a mosaic video")
+    add_scene_args(p_cmp, integrator=False)
+    p_cmp.add_argument("--integrators", default=DEFAULT_COMPARE,
+                       help=f"comma-separated integrator names, one tile each (default: {DEFAULT_COMPARE})")
+    add_render_args(p_cmp, mesh_export=False)
+    p_cmp.set_defaults(func=cmd_compare)
     p_list = sub.add_parser("list", help="list scenes, integrators and backends")
     p_list.set_defaults(func=cmd_list)
     return parser
@@ -201,5 +355,6 @@ def main(argv=None) -> int:
 
 
 def main_job() -> int:
-    """``python main.py`` with no arguments: the default scene, summary written under out/."""
-    return main(["run", "--scene", "plane", "--summary", "out/plane-summary.json"])
+    """``python main.py`` with no arguments: renders the default scene to out/<scene>-<integrator>.mp4."""
+    return main(["run", "--scene", DEFAULT_SCENE, "--integrator", DEFAULT_INTEGRATOR,
+                 "--video", f"out/{DEFAULT_SCENE}-{DEFAULT_INTEGRATOR}.mp4"])
