@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from ..errors import UserError
 from . import explicit  # noqa: F401  (registers the explicit family)
+from . import implicit  # noqa: F401  (registers implicit_euler, fast_mass_spring)
 from .base import REGISTRY, Integrator, register
 
 __all__ = ["REGISTRY", "Integrator", "register", "make_integrator", "names"]

@@ -88,21 +88,31 @@ def plane_basis(normal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return n, level, uphill
 
 
-def _enclosing_sphere(spheres) -> tuple[np.ndarray, float]:
-    """A sphere containing all given spheres: centred on their bounding box."""
-    lo = np.min([c - r for c, r in spheres], axis=0)
-    hi = np.max([c + r for c, r in spheres], axis=0)
-    center = 0.5 * (lo + hi)
-    radius = max(np.linalg.norm(c - center) + r for c, r in spheres)
-    return center, radius
+def _fit_distance(spheres, center, direction, up, half_v: float, half_h: float) -> float:
+    """Smallest camera distance from ``center`` along unit ``direction`` at which every sphere
+    (centre [m], radius [m]) lies inside the view cone of half-angles ``half_v``, ``half_h`` [rad].
+
+    Per sphere and image axis: its centre's offset from the view axis plus its radius widened by
+    1 / cos(half-angle) (a sphere's silhouette off-axis) must fit in tan(half-angle) x depth.
+    """
+    right = np.cross(-direction, up)
+    right /= np.linalg.norm(right)
+    cam_up = np.cross(right, -direction)
+    distance = 0.0
+    for c, r in spheres:
+        rel = c - center
+        z = np.dot(rel, direction)  # towards the camera
+        for offset, half in ((abs(np.dot(rel, right)), half_h), (abs(np.dot(rel, cam_up)), half_v)):
+            distance = max(distance, z + (offset + r / math.cos(half)) / math.tan(half), z + r + 2 * Z_NEAR)
+    return distance
 
 
 def default_camera(scene_data: dict, aspect: float) -> CameraSpec:
     """A camera for a scene without ``[render.camera]``: everything that matters is in frame.
 
-    The bodies' start, and the terrain where they land (the footprint on a plane, the ball, the
-    bowl), are wrapped in one sphere; the camera looks at its centre from the terrain's default
-    angles at the distance where the sphere fits the narrower of the two fields of view.
+    What matters, as spheres: the bodies at the start, and where they end up on the terrain (the
+    footprint on a plane, the ball, the bowl). The camera looks at the middle of their bounding
+    box from the terrain's default angles, at the least distance where all of them fit.
     ``aspect`` = width / height of the image.
     """
     terrain = scene_data["terrain"]
@@ -117,24 +127,26 @@ def default_camera(scene_data: dict, aspect: float) -> CameraSpec:
     elif kind in ("sphere", "bowl"):
         spheres.append((np.asarray(terrain["center"], dtype=np.float64), terrain["radius"]))
     elif kind == "tilted_plane":
-        # Followed: frame one body's neighbourhood (it rolls and tumbles as it slides).
-        spheres = [(c, 1.6 * r) for c, r in bodies]
-    center, radius = _enclosing_sphere(spheres)
-    if kind == "none":
-        radius *= 1.2  # free bodies oscillate about their start
+        # Followed: frame one body's neighbourhood (it tumbles as it slides).
+        spheres = [(c, 1.5 * r) for c, r in bodies]
+    else:  # free bodies oscillate and spin about their start
+        spheres = [(c, 1.2 * r) for c, r in bodies]
+    lo = np.min([c - r for c, r in spheres], axis=0)
+    hi = np.max([c + r for c, r in spheres], axis=0)
+    center = 0.5 * (lo + hi)
 
     azimuth, elevation = (math.radians(a) for a in _VIEW_ANGLES[kind])
     if kind == "tilted_plane":
         frame_n, frame_a, frame_b = n, level, uphill
     else:  # level reference frame: elevation above the horizontal
         frame_n, frame_a, frame_b = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    direction = (math.cos(elevation) * (math.cos(azimuth) * frame_a + math.sin(azimuth) * frame_b)
-                 + math.sin(elevation) * frame_n)
+    direction = _unit(math.cos(elevation) * (math.cos(azimuth) * frame_a + math.sin(azimuth) * frame_b)
+                      + math.sin(elevation) * frame_n)
+    up = np.array([0.0, 1.0, 0.0])
     half_v = math.radians(DEFAULT_FOV) / 2
     half_h = math.atan(math.tan(half_v) * aspect)
-    distance = radius / math.sin(min(half_v, half_h))
-    position = center + distance * _unit(direction)
-    return CameraSpec(tuple(position), tuple(center), (0.0, 1.0, 0.0), DEFAULT_FOV, kind in _FOLLOW)
+    distance = _fit_distance(spheres, center, direction, up, half_v, half_h)
+    return CameraSpec(tuple(center + distance * direction), tuple(center), tuple(up), DEFAULT_FOV, kind in _FOLLOW)
 
 
 def scene_camera(scene_data: dict, aspect: float, follow: bool | None = None) -> CameraSpec:

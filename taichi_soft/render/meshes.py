@@ -19,24 +19,28 @@ from .camera import plane_basis
 
 # Colours (linear RGB in [0, 1]); GGUI writes them to the image without gamma.
 CHECKER = ((0.78, 0.80, 0.82), (0.64, 0.67, 0.71))  # terrain tiles, low contrast against aliasing
-SHELL_INSIDE = ((0.70, 0.80, 0.86), (0.58, 0.68, 0.76))
-SHELL_OUTSIDE = ((0.42, 0.47, 0.55), (0.36, 0.41, 0.49))
+SHELL = ((0.70, 0.80, 0.86), (0.58, 0.68, 0.76))  # the bowl, blue-grey
 BODY_COLORS = ((0.95, 0.45, 0.15), (0.15, 0.65, 0.75), (0.60, 0.35, 0.80), (0.35, 0.70, 0.30), (0.90, 0.75, 0.15))
 
 
 @dataclass
 class TriMesh:
     """A static triangle mesh: vertices [n, 3] m, unit normals [n, 3], per-vertex colours [n, 3],
-    triangles [m, 3] vertex indices wound counter-clockwise seen from the normal's side."""
+    triangles [m, 3] vertex indices wound counter-clockwise seen from the normal's side.
+
+    GGUI culls no faces; ``two_sided`` lights a face seen from behind with its normal flipped.
+    """
 
     vertices: np.ndarray
     normals: np.ndarray
     colors: np.ndarray
     triangles: np.ndarray
+    two_sided: bool = False
 
 
-def _checker_grid(position, normal, nu: int, nv: int, colors) -> TriMesh:
-    """A (u, v) in [0, 1]^2 surface cut into nu x nv cells, alternately coloured.
+def _checker_grid(position, normal, nu: int, nv: int, colors, tile: int = 1, two_sided=False) -> TriMesh:
+    """A (u, v) in [0, 1]^2 surface cut into nu x nv cells, coloured as a checkerboard of
+    ``tile`` x ``tile`` cell squares (fine cells keep curved shapes exact, tiles stay readable).
 
     ``position(u, v)`` and ``normal(u, v)`` take arrays and return [..., 3]. Cells do not share
     vertices so that each cell keeps one flat colour.
@@ -46,47 +50,43 @@ def _checker_grid(position, normal, nu: int, nv: int, colors) -> TriMesh:
     corners = [(0, 0), (1, 0), (1, 1), (0, 1)]
     u = np.stack([(i + a) / nu for a, _ in corners], axis=1)  # [cells, 4]
     v = np.stack([(j + b) / nv for _, b in corners], axis=1)
-    verts = position(u, v)  # [cells, 4, 3]
-    norms = normal(u, v)
-    cells = len(i)
-    base = 4 * np.arange(cells)[:, None]
+    flat_v = position(u, v).reshape(-1, 3)
+    flat_n = np.broadcast_to(normal(u, v), u.shape + (3,)).reshape(-1, 3)
+    base = 4 * np.arange(len(i))[:, None]
     tris = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]])
     # Wind each triangle counter-clockwise as seen from its normal's side, whatever the
-    # parametrisation's orientation, so back-face culling keeps the right side.
-    flat_v = verts.reshape(-1, 3)
-    flat_n = norms.reshape(-1, 3)
+    # parametrisation's orientation, so exporters and any culling agree on the front.
     face_n = np.cross(flat_v[tris[:, 1]] - flat_v[tris[:, 0]], flat_v[tris[:, 2]] - flat_v[tris[:, 0]])
     flip = np.einsum("ij,ij->i", face_n, flat_n[tris].sum(axis=1)) < 0
     tris[flip] = tris[flip][:, ::-1]
-    parity = ((i + j) % 2).repeat(4)
+    parity = ((i // tile + j // tile) % 2).repeat(4)
     cols = np.asarray(colors, dtype=np.float64)[parity]
-    return TriMesh(flat_v, flat_n, cols, tris)
+    return TriMesh(flat_v, flat_n, cols, tris, two_sided)
 
 
 def plane_mesh(point, normal, focus, half_size: float) -> TriMesh:
     """Square of side 2 ``half_size`` [m] on the plane, centred where ``focus`` [m] projects.
 
-    Tiles are anchored to ``point`` so they stay put in the world wherever the square is cut.
+    Tiles of 1 m (2, 4 ... m on very large squares) are anchored to ``point``, so they stay put
+    in the world wherever the square is cut and show how far a body moves.
     """
     n, a, b = plane_basis(normal)
     p = np.asarray(point, dtype=np.float64)
-    cell = 1.0 if half_size <= 30 else 2.0 ** math.ceil(math.log2(half_size / 30))
+    cell = 1.0 if half_size <= 40 else 2.0 ** math.ceil(math.log2(half_size / 40))
     f = np.asarray(focus, dtype=np.float64) - p
     # Snap the square's corner to the tile grid so the checker pattern is anchored at ``point``.
     ca = math.floor((np.dot(f, a) - half_size) / cell) * cell
     cb = math.floor((np.dot(f, b) - half_size) / cell) * cell
     cells = int(math.ceil(2 * half_size / cell))
+    side = cells * cell
 
     def position(u, v):
-        return p + (ca + u[..., None] * cells * cell) * a + (cb + v[..., None] * cells * cell) * b
+        return p + (ca + u[..., None] * side) * a + (cb + v[..., None] * side) * b
 
-    def normals(u, v):
-        return np.broadcast_to(n, u.shape + (3,))
-
-    return _checker_grid(position, normals, cells, cells, CHECKER)
+    return _checker_grid(position, lambda u, v: n, cells, cells, CHECKER)
 
 
-def _sphere_patch(center, radius, lat_lo, lat_hi, n_lon, n_lat, inward, colors) -> TriMesh:
+def _sphere_patch(center, radius, lat_lo, lat_hi, n_lon, n_lat, inward, colors, tile, two_sided=False) -> TriMesh:
     """Part of a sphere between latitudes ``lat_lo`` and ``lat_hi`` [rad] (0 = equator)."""
     c = np.asarray(center, dtype=np.float64)
     sign = -1.0 if inward else 1.0
@@ -97,34 +97,36 @@ def _sphere_patch(center, radius, lat_lo, lat_hi, n_lon, n_lat, inward, colors) 
         return np.stack([np.cos(lat) * np.cos(lon), np.sin(lat), np.cos(lat) * np.sin(lon)], axis=-1)
 
     return _checker_grid(lambda u, v: c + radius * direction(u, v), lambda u, v: sign * direction(u, v),
-                         n_lon, n_lat, colors)
+                         n_lon, n_lat, colors, tile, two_sided)
 
 
 def sphere_mesh(center, radius) -> TriMesh:
     """The whole ball, seen from outside. 96 x 48 cells: the flat facets sag at most
     r (1 - cos(pi / 96)) = 0.05 % of r below the true sphere the bodies rest on."""
-    return _sphere_patch(center, radius, -math.pi / 2, math.pi / 2, 96, 48, False, CHECKER)
+    return _sphere_patch(center, radius, -math.pi / 2, math.pi / 2, 96, 48, False, CHECKER, tile=4)
 
 
-def bowl_meshes(center, radius) -> list[TriMesh]:
-    """The bowl's lower hemisphere as two one-sided shells: the inside (lit from within) and the
-    outside. Two meshes rather than GGUI's ``two_sided`` so each side has its own normal and colour."""
-    args = (center, radius, -math.pi / 2, 0.0, 96, 24)
-    return [_sphere_patch(*args, True, SHELL_INSIDE), _sphere_patch(*args, False, SHELL_OUTSIDE)]
+def bowl_mesh(center, radius) -> TriMesh:
+    """The bowl's lower hemisphere as one two-sided shell, normals pointing into the bowl.
+
+    (Two coincident one-sided shells would z-fight: GGUI does not cull back faces.)
+    """
+    return _sphere_patch(center, radius, -math.pi / 2, 0.0, 96, 24, True, SHELL, tile=2, two_sided=True)
 
 
 def plane_half_size(scene_data: dict, normal) -> float:
     """Half side [m] of the drawn plane: as far as a body could get along it within the run.
 
     Bound: start speed times duration plus free sliding under the in-plane part of gravity
-    (frictionless), plus the body's size and a margin; capped at 1 km.
+    (frictionless), plus the body's size and a 40 m margin so the far edge stays in the distance;
+    capped at 1 km.
     """
     duration = scene_data["sim"]["duration"]
     g = np.asarray(scene_data["sim"]["gravity"], dtype=np.float64)
     n = plane_basis(normal)[0]
     g_along = np.linalg.norm(g - np.dot(g, n) * n)
     reach = max(np.linalg.norm(b["velocity"]) * duration + b["size"] for b in scene_data["body"])
-    return float(min(20.0 + reach + 0.5 * g_along * duration**2, 1000.0))
+    return float(min(40.0 + reach + 0.5 * g_along * duration**2, 1000.0))
 
 
 def terrain_meshes(scene_data: dict) -> list[TriMesh]:
@@ -137,7 +139,7 @@ def terrain_meshes(scene_data: dict) -> list[TriMesh]:
     if kind == "sphere":
         return [sphere_mesh(t["center"], t["radius"])]
     if kind == "bowl":
-        return bowl_meshes(t["center"], t["radius"])
+        return [bowl_mesh(t["center"], t["radius"])]
     return []
 
 

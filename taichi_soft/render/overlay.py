@@ -48,10 +48,14 @@ class RunInfo:
 
     def lines(self, time: float, energy: float) -> list[str]:
         """Overlay lines at simulated ``time`` [s] with total energy ``energy`` [J]."""
-        e = f"{energy:12.1f} J" if math.isfinite(energy) and abs(energy) < 1e9 else f"{energy:12.4g} J"
         return [f"{self.scene} | {self.integrator} | dt = {self.dt:g} s",
                 f"k = {self.stiffness} | damping = {self.damping}",
-                f"t = {time:7.3f} s | E = {e.strip()}"]
+                f"t = {time:7.3f} s | E = {energy_text(energy)}"]
+
+
+def energy_text(energy: float) -> str:
+    """Total energy [J] for labels: fixed point while it fits, else scientific."""
+    return f"{energy:.1f} J" if math.isfinite(energy) and abs(energy) < 1e7 else f"{energy:.3g} J"
 
 
 def value_range(values, unit: str) -> str:

@@ -46,9 +46,10 @@ class _StaticMesh:
         self.normals.from_numpy(mesh.normals.astype(np.float32))
         self.colors.from_numpy(mesh.colors.astype(np.float32))
         self.indices.from_numpy(mesh.triangles.astype(np.int32).ravel())
+        self.two_sided = mesh.two_sided
 
     def draw(self, scene):
-        scene.mesh(self.vertices, self.indices, self.normals, per_vertex_color=self.colors)
+        scene.mesh(self.vertices, self.indices, self.normals, per_vertex_color=self.colors, two_sided=self.two_sided)
 
 
 @ti.data_oriented

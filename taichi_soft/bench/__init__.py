@@ -1,0 +1,1 @@
+"""Benchmarks (``python main.py bench ...``). Never imported by the physics modules."""

@@ -1,0 +1,228 @@
+"""Where frames go: video files, PNG folders, mesh folders, and the thread that writes them.
+
+Every output is written beside its destination first and moved into place only by
+``commit()``; ``abort()`` removes what was written. A run that fails part-way therefore never
+leaves a half-written video or replaces the frames of an earlier run.
+"""
+from __future__ import annotations
+
+import os
+import queue
+import secrets
+import shutil
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+
+def _reserve_temp(path: Path) -> Path:
+    """A new empty file beside ``path`` with the same suffix (ffmpeg picks the format by it).
+
+    Created with the usual permissions (0666 less the umask), unlike ``tempfile.mkstemp``'s 0600,
+    because it becomes the user's file.
+    """
+    for _ in range(100):
+        tmp = path.with_name(f".{path.stem}.{os.getpid()}.{secrets.token_hex(4)}{path.suffix}")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+    raise UserError(f"cannot create a temporary file beside {path}")
+
+
+class VideoFile:
+    """An H.264 MP4 (yuv420p, which every player opens) or a GIF, encoded by ffmpeg as frames come.
+
+    ``size`` = (width, height) in pixels; MP4 needs both even (checked by ``check_video_size``).
+    """
+
+    def __init__(self, path: Path, fps: float, size: tuple[int, int]):
+        import imageio_ffmpeg
+
+        self.path = Path(path)
+        self.tmp = _reserve_temp(self.path)
+        if self.path.suffix.lower() == ".gif":
+            # One palette for the whole clip (ffmpeg buffers the frames to build it): far better
+            # colours than the fixed 8-bit palette GIF encoders use by default.
+            codec, pix_fmt = "gif", "pal8"
+            params = ["-vf", "split[a][b];[a]palettegen=stats_mode=full[p];[b][p]paletteuse=dither=bayer", "-loop", "0"]
+        else:
+            codec, pix_fmt = "libx264", "yuv420p"
+            # veryfast: encoding keeps up with rendering on two cores; crf 20 keeps thin lines and text sharp.
+            params = ["-preset", "veryfast", "-crf", "20", "-movflags", "+faststart"]
+        try:
+            self._gen = imageio_ffmpeg.write_frames(str(self.tmp), size, fps=fps, codec=codec, pix_fmt_out=pix_fmt,
+                                                    quality=None, macro_block_size=1, ffmpeg_log_level="error",
+                                                    output_params=params)
+            self._gen.send(None)
+        except Exception as e:  # noqa: BLE001 - no ffmpeg binary, or it refused the options
+            self.tmp.unlink(missing_ok=True)
+            raise UserError(f"cannot start ffmpeg to write {self.path}: {e}") from None
+        self.frames = 0
+
+    def add(self, frame: np.ndarray, index: int):
+        self._gen.send(np.ascontiguousarray(frame))
+        self.frames += 1
+
+    def commit(self) -> Path:
+        self._gen.close()
+        os.replace(self.tmp, self.path)
+        return self.path
+
+    def abort(self):
+        try:
+            self._gen.close()
+        except Exception:  # noqa: BLE001 - already failing; the temp file goes anyway
+            pass
+        self.tmp.unlink(missing_ok=True)
+
+
+class StagedDir:
+    """Files named ``{prefix}_{index:05d}{suffix}`` collected in a hidden folder beside ``target``.
+
+    ``commit`` moves them into ``target`` (created if needed) and deletes files of the same
+    pattern left there by an earlier, longer run, so the folder holds exactly this run's files.
+    Other files in ``target`` are never touched.
+    """
+
+    def __init__(self, target: Path, prefix: str, suffix: str):
+        self.target, self.prefix, self.suffix = Path(target), prefix, suffix
+        self.target.parent.mkdir(parents=True, exist_ok=True)
+        self.staging = Path(tempfile.mkdtemp(dir=self.target.parent, prefix=f".{self.target.name}."))
+
+    def file(self, index: int) -> Path:
+        return self.staging / f"{self.prefix}_{index:05d}{self.suffix}"
+
+    def commit(self) -> Path:
+        self.target.mkdir(parents=True, exist_ok=True)
+        written = set()
+        for f in sorted(self.staging.iterdir()):
+            os.replace(f, self.target / f.name)
+            written.add(f.name)
+        for old in self.target.glob(f"{self.prefix}_*{self.suffix}"):
+            if old.name not in written:
+                old.unlink()
+        self.staging.rmdir()
+        return self.target
+
+    def abort(self):
+        shutil.rmtree(self.staging, ignore_errors=True)
+
+
+class PngFrames:
+    """Numbered PNGs ``frame_00000.png`` ... in a folder."""
+
+    def __init__(self, target: Path):
+        self.dir = StagedDir(target, "frame", ".png")
+
+    def add(self, frame: np.ndarray, index: int):
+        from PIL import Image
+
+        Image.fromarray(frame).save(self.dir.file(index), compress_level=1)  # fast; PNG stays lossless
+
+    def commit(self) -> Path:
+        return self.dir.commit()
+
+    def abort(self):
+        self.dir.abort()
+
+
+def open_image_sinks(video: Path | None, frames: Path | None, fps: float, size: tuple[int, int]) -> list:
+    """The video file and/or PNG folder a run asked for, ready for ``add(image, index)``."""
+    sinks = []
+    try:
+        if video:
+            sinks.append(VideoFile(video, fps, size))
+        if frames:
+            sinks.append(PngFrames(frames))
+    except BaseException:
+        abort_all(sinks)
+        raise
+    return sinks
+
+
+def commit_all(sinks) -> list[Path]:
+    """Move every sink's output into place; returns the paths written."""
+    return [sink.commit() for sink in sinks]
+
+
+def abort_all(sinks):
+    """Remove every sink's partial output; never raises."""
+    for sink in sinks:
+        try:
+            sink.abort()
+        except Exception:  # noqa: BLE001 - cleaning up after a failure already being reported
+            pass
+
+
+class BackgroundWriter:
+    """Runs ``handle(item)`` for each submitted item, in order, on one worker thread.
+
+    The queue holds at most ``maxsize`` items: the simulation only waits when encoding falls that
+    far behind, and memory stays bounded. An exception in the worker is raised again in the
+    caller at the next ``submit`` or at ``close``.
+    """
+
+    _STOP = object()
+
+    def __init__(self, handle, maxsize: int = 4):
+        self._handle = handle
+        self._queue: queue.Queue = queue.Queue(maxsize=maxsize)
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="taichi-soft-writer", daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        while True:
+            item = self._queue.get()
+            if item is self._STOP:
+                return
+            if self._error is None:
+                try:
+                    self._handle(item)
+                except BaseException as e:  # noqa: BLE001 - handed to the caller
+                    self._error = e
+
+    def submit(self, item):
+        while True:
+            self._raise_if_failed()
+            try:
+                self._queue.put(item, timeout=0.2)  # wake up now and then to notice a dead worker
+                return
+            except queue.Full:
+                continue
+
+    def _raise_if_failed(self):
+        if self._error is not None:
+            raise self._error
+
+    def close(self):
+        """Wait until everything submitted is written; re-raise a worker failure."""
+        self._queue.put(self._STOP)
+        self._thread.join()
+        self._raise_if_failed()
+
+    def abort(self):
+        """Stop without finishing the backlog."""
+        self._error = self._error or RuntimeError("aborted")
+        try:
+            while True:
+                self._queue.get_nowait()
+        except queue.Empty:
+            pass
+        self._queue.put(self._STOP)
+        self._thread.join()
+
+
+def check_video_size(path: Path | None, width: int, height: int):
+    """MP4 (H.264 in yuv420p) stores colour at half resolution: width and height must be even."""
+    if path is not None and path.suffix.lower() == ".mp4" and (width % 2 or height % 2):
+        raise UserError(f"--video {path}: MP4 needs an even width and height, got {width}x{height}; "
+                        f"try {width + width % 2}x{height + height % 2}")

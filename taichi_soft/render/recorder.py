@@ -1,0 +1,152 @@
+"""Recording one run: render each output frame, overlay it, hand it to the writers.
+
+``FrameRecorder`` is what ``python main.py run --video/--frames/--export-mesh`` passes to
+``Simulation.run(on_frame=...)``. The main thread steps and renders (GGUI must stay on the
+thread that opened it); overlays, PNG and ffmpeg encoding and mesh files run on a worker thread
+behind a bounded queue.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import overlay
+from .outputs import BackgroundWriter, abort_all, commit_all, open_image_sinks
+
+HOLD_SECONDS = 1.0  # how long a diverged run's last frame stays on screen with the banner
+
+
+@dataclass
+class RenderOptions:
+    """What to write and how to draw it. Paths are validated by the CLI before any simulation."""
+
+    video: Path | None = None
+    frames: Path | None = None
+    mesh_dir: Path | None = None
+    mesh_format: str = "ply"
+    fps: float = 30.0  # output frames per simulated second
+    resolution: tuple = (1280, 720)  # (width, height) pixels
+    surface: bool = True
+    particles: bool = False
+    springs: bool = False
+    follow: bool | None = None  # None: the terrain's default
+    overlay: bool = True
+
+    @property
+    def needs_renderer(self) -> bool:
+        return self.video is not None or self.frames is not None
+
+    @property
+    def any(self) -> bool:
+        return self.needs_renderer or self.mesh_dir is not None
+
+
+class FrameRecorder:
+    """Callable ``on_frame(sim)`` for ``Simulation.run``; then ``finish()`` or ``abort()``.
+
+    Opening it opens the offscreen window, so a machine without Vulkan fails here, in one line
+    (``UserError``), before any simulation. ``progress(frames_done, sim)`` is called per frame.
+    """
+
+    def __init__(self, sim, options: RenderOptions, progress=None):
+        from .camera import scene_camera
+        from .meshes import SurfaceMesh
+
+        self.sim, self.options, self.progress = sim, options, progress
+        width, height = options.resolution
+        self.renderer = self.view = self.writer = None
+        self.image_sinks, self.mesh_sinks = [], []
+        if options.needs_renderer:
+            from .renderer import Renderer, SimulationView
+
+            self.renderer = Renderer(width, height)
+        try:
+            if self.renderer is not None:
+                self.view = SimulationView(sim, options.surface, options.particles, options.springs)
+            self.surface = self.view.surface if self.view else SurfaceMesh(sim.model)
+            self.camera = scene_camera(sim.scene.data, width / height, options.follow)
+            self.info = overlay.run_info(sim)
+            self.image_sinks = open_image_sinks(options.video, options.frames, options.fps, (width, height))
+            if options.mesh_dir:
+                from .export import MeshFrames
+
+                self.mesh_sinks.append(MeshFrames(options.mesh_dir, options.mesh_format, self.surface))
+            self.writer = BackgroundWriter(self._write)
+        except BaseException:
+            self.abort()
+            raise
+        self.frames = 0
+        self.last = None  # (image, overlay lines) of the last good frame
+        self.diverged_at: float | None = None
+
+    # -- main thread -------------------------------------------------------------------------
+    def __call__(self, sim):
+        if sim.diverged:
+            # The state after a diverged step holds NaN or runaway values: not worth drawing.
+            self.diverged_at = sim.diverged_at
+            return
+        m = sim.measure()
+        lines = self.info.lines(sim.time, m["total_energy"])
+        image = mesh = None
+        if self.renderer is not None:
+            image = self.renderer.render(self.view, self.camera.following(m["center_of_mass"]))
+        else:
+            self.surface.update(sim.state.x)
+        if self.options.mesh_dir:
+            mesh = self.surface.numpy()
+        self.writer.submit((self.frames, image, lines, None, mesh, sim.time))
+        self.last = (image, lines)
+        self.frames += 1
+        if self.progress is not None:
+            self.progress(self.frames, sim)
+
+    def finish(self) -> list[Path]:
+        """Close the outputs (after the diverged hold, if any); returns the paths written."""
+        try:
+            if self.diverged_at is not None and self.last is not None and self.renderer is not None:
+                image, lines = self.last
+                banner = f"DIVERGED at t = {self.diverged_at:.4f} s"
+                for _ in range(max(1, round(HOLD_SECONDS * self.options.fps))):
+                    self.writer.submit((self.frames, image, lines, banner, None, self.diverged_at))
+                    self.frames += 1
+            self.writer.close()
+            return commit_all(self.image_sinks + self.mesh_sinks)
+        except BaseException:
+            self.abort()
+            raise
+        finally:
+            if self.renderer is not None:
+                self.renderer.close()
+                self.renderer = None
+
+    def abort(self):
+        """Drop everything: no output file is created or replaced."""
+        if self.writer is not None:
+            self.writer.abort()
+        abort_all(self.image_sinks + self.mesh_sinks)
+        if self.renderer is not None:
+            self.renderer.close()
+            self.renderer = None
+
+    # -- worker thread -----------------------------------------------------------------------
+    def _write(self, item):
+        index, image, lines, banner, mesh, time = item
+        if image is not None:
+            image = image.copy()  # the main thread keeps the clean last frame for the hold
+            if self.options.overlay:
+                overlay.draw_info(image, lines)
+            if banner:
+                overlay.draw_banner(image, banner)
+            for sink in self.image_sinks:
+                sink.add(image, index)
+        if mesh is not None:
+            for sink in self.mesh_sinks:
+                sink.add(mesh, index, time)
+
+
+def frame_count(duration: float, dt: float, fps: float) -> int:
+    """Frames ``Simulation.run`` visits for ``duration`` [s] at ``dt`` [s] and ``fps``."""
+    from ..simulation import frame_steps
+
+    return len(frame_steps(max(int(round(duration / dt)), 1), fps, dt))
+
