@@ -27,6 +27,8 @@ class BodySpec:
     rotation_degrees: float = 0.0
     velocity: tuple = (0.0, 0.0, 0.0)
     angular_velocity: tuple = (0.0, 0.0, 0.0)
+    # Initial deformation: the start shape is the rest shape scaled per body axis (1 = at rest).
+    initial_stretch: tuple = (1.0, 1.0, 1.0)
     # (stiffness [N/m], damper coefficient [N s/m]) per spring kind
     stretch: tuple = (2000.0, 60.0)
     shear: tuple = (2000.0, 60.0)
@@ -57,16 +59,18 @@ class ModelBuilder:
         return len(self.specs) - 1
 
     def finalize(self) -> "Model":
-        xs, vs, masses, bodies = [], [], [], []
+        xs, rests, vs, masses, bodies = [], [], [], [], []
         pairs, groups, surfaces = [], [], []
         group_k, group_kd = [], []
         p0 = s0 = 0
         for b, spec in enumerate(self.specs):
             rot = lattice.rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
-            local = lattice.lattice_points(spec.n, spec.size) @ rot.T
+            rest_local = lattice.lattice_points(spec.n, spec.size)
+            local = (rest_local * np.asarray(spec.initial_stretch, dtype=np.float64)) @ rot.T
             center = np.asarray(spec.center, dtype=np.float64)
             omega = np.asarray(spec.angular_velocity, dtype=np.float64)
             xs.append(local + center)
+            rests.append(rest_local @ rot.T + center)
             vs.append(np.asarray(spec.velocity, dtype=np.float64) + np.cross(omega, local))
             masses.append(np.full(len(local), spec.particle_mass))
             bp, bk = lattice.lattice_springs(spec.n)
@@ -82,8 +86,9 @@ class ModelBuilder:
             p0 += len(local)
             s0 += len(bp)
         x = np.concatenate(xs)
+        x_rest = np.concatenate(rests)
         pairs = np.concatenate(pairs)
-        rest = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
+        rest = np.linalg.norm(x_rest[pairs[:, 0]] - x_rest[pairs[:, 1]], axis=1)
         return Model(
             x0=x, v0=np.concatenate(vs), mass=np.concatenate(masses), pairs=pairs,
             rest=rest, group=np.concatenate(groups), group_k=np.array(group_k, dtype=np.float64),

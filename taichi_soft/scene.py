@@ -29,6 +29,7 @@ BODY_DEFAULTS = {
     "rotation": {"axis": [1.0, 0.0, 1.0], "degrees": 0.0},
     "velocity": [0.0, 0.0, 0.0],
     "angular_velocity": [0.0, 0.0, 0.0],
+    "initial_stretch": [1.0, 1.0, 1.0],
     "stretch": dict(SPRING_DEFAULT),
     "shear": dict(SPRING_DEFAULT),
     "bend": dict(SPRING_DEFAULT),
@@ -186,6 +187,9 @@ def validate(raw: dict, integrator_names=None) -> dict:
         body["particle_mass"] = _positive(f"{key}.particle_mass", body["particle_mass"])
         for vk in ("center", "velocity", "angular_velocity"):
             body[vk] = _vec3(f"{key}.{vk}", body[vk])
+        body["initial_stretch"] = _vec3(f"{key}.initial_stretch", body["initial_stretch"])
+        if min(body["initial_stretch"]) <= 0:
+            raise UserError(f"{key}.initial_stretch = {body['initial_stretch']!r}: factors must be > 0")
         rot = _table(f"{key}.rotation", body["rotation"])
         _check_keys(f"{key}.rotation", rot, BODY_DEFAULTS["rotation"])
         rot["axis"] = _vec3(f"{key}.rotation.axis", rot["axis"], nonzero=True)

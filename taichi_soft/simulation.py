@@ -24,6 +24,7 @@ def body_spec(body: dict) -> BodySpec:
         n=body["n"], size=body["size"], particle_mass=body["particle_mass"], center=tuple(body["center"]),
         rotation_axis=tuple(body["rotation"]["axis"]), rotation_degrees=body["rotation"]["degrees"],
         velocity=tuple(body["velocity"]), angular_velocity=tuple(body["angular_velocity"]),
+        initial_stretch=tuple(body["initial_stretch"]),
         stretch=(body["stretch"]["k"], body["stretch"]["damping"]),
         shear=(body["shear"]["k"], body["shear"]["damping"]),
         bend=(body["bend"]["k"], body["bend"]["damping"]),

@@ -118,3 +118,11 @@ def test_strategies_agree_with_gravity_and_contact():
     v = rng.standard_normal(x.shape)
     np.testing.assert_allclose(accelerations(model, terrain, x, v, "per_spring"),
                                accelerations(model, terrain, x, v, "gather"), rtol=1e-12, atol=1e-9)
+
+
+def test_initial_stretch_deforms_start_not_rest():
+    model, _ = build(n=3, size=2.0, initial_stretch=(1.5, 1.0, 1.0))
+    plain, _ = build(n=3, size=2.0)
+    np.testing.assert_allclose(model.rest_np, plain.rest_np, rtol=1e-12)
+    span = np.ptp(model.x0_np, axis=0)
+    np.testing.assert_allclose(span, [3.0, 2.0, 2.0], rtol=1e-12)
