@@ -76,12 +76,11 @@ class ForceEvaluator:
                 self.spring_f[s] = spring_pair_force(m, x, v, ends[0], ends[1], m.spring_rest[s], m.spring_group[s])
             for i in range(m.n_particles):
                 f = ti.Vector.zero(float, 3)
-                for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
-                    s = m.adj_spring[e]
-                    if s >= 0:
-                        f += self.spring_f[s]
-                    else:
-                        f -= self.spring_f[-s - 1]
+                # Two branch-free runs: springs where i is end a (+f), then end b (-f).
+                for e in range(m.adj_offset[i], m.adj_split[i]):
+                    f += self.spring_f[m.adj_spring[e]]
+                for e in range(m.adj_split[i], m.adj_offset[i + 1]):
+                    f -= self.spring_f[-m.adj_spring[e] - 1]
                 a[i] = self.particle_accel(x, v, i, f, dt)
         else:
             for i in range(m.n_particles):

@@ -109,6 +109,8 @@ class Model:
       adj_offset          [n_particles + 1]        CSR row starts of each particle's springs
       adj_other, adj_rest, adj_group [2 n_springs] the other end, rest length, group per entry
       adj_spring          [2 n_springs]            spring id s if the particle is end a, else -s - 1
+      adj_split           [n_particles]            where a particle's "end b" entries begin (its
+                                                   "end a" entries come first: no sign branch)
       gravity             0-d vec3                 [m/s^2]
     The adjacency lets force kernels gather over a particle's springs without atomics.
     """
@@ -138,6 +140,7 @@ class Model:
         self.adj_rest = ti.field(float, 2 * m)
         self.adj_group = ti.field(ti.i32, 2 * m)
         self.adj_spring = ti.field(ti.i32, 2 * m)
+        self.adj_split = ti.field(ti.i32, n)
         self.gravity = ti.Vector.field(3, float, ())
 
         self.real = np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
@@ -166,6 +169,9 @@ class Model:
         self.adj_group.from_numpy(self.group_np[spring[order]].astype(np.int32))
         signed = np.concatenate([np.arange(self.n_springs), -np.arange(self.n_springs) - 1])
         self.adj_spring.from_numpy(signed[order].astype(np.int32))
+        # The stable sort keeps each particle's "end a" entries (first half of `owner`) first.
+        split = offset[:-1] + np.bincount(a, minlength=self.n_particles)
+        self.adj_split.from_numpy(split.astype(np.int32))
 
     # -- run-time parameters -------------------------------------------------------------
     def set_spring_params(self, body: int, kind: str, k: float | None = None, damping: float | None = None):
