@@ -1,0 +1,148 @@
+"""Reference implementations of one semi-implicit Euler mass-spring step, for the speed study.
+
+Both compute exactly the engine's forces for a scene without terrain (gravity, Hooke springs,
+dampers along the spring) and the same update (v += dt a; x += dt v), so the comparison is like
+with like:
+
+* ``NumpyStepper``: vectorised numpy over springs, forces scattered with ``np.bincount``;
+* ``WarpStepper``: NVIDIA Warp (``warp-lang``, an optional benchmark extra, never a dependency
+  of the engine), written the way ``warp.sim`` does it: a spring kernel with atomic adds, then an
+  integrate kernel.
+"""
+from typing import Any
+
+import numpy as np
+
+
+def spring_arrays(model):
+    """Per-spring (a, b, rest [m], k [N/m], kd [N s/m]) and per-particle inverse mass, numpy."""
+    k = model.group_k.to_numpy().astype(np.float64)[model.group_np]
+    kd = model.group_kd.to_numpy().astype(np.float64)[model.group_np]
+    inv_m = np.where(model.mass_np > 0, 1.0 / model.mass_np, 0.0)
+    return model.pairs_np[:, 0], model.pairs_np[:, 1], model.rest_np, k, kd, inv_m
+
+
+class NumpyStepper:
+    """Semi-implicit Euler in numpy; ``step(n)`` advances ``self.x``, ``self.v`` in place."""
+
+    def __init__(self, model, x, v, dt, dtype=np.float64):
+        a, b, rest, k, kd, inv_m = spring_arrays(model)
+        self.a, self.b = a, b
+        self.rest, self.k, self.kd = (np.asarray(t, dtype) for t in (rest, k, kd))
+        self.inv_m = np.asarray(inv_m, dtype)[:, None]
+        self.g = np.asarray(model.gravity[None].to_numpy(), dtype) * (self.inv_m > 0)
+        self.x = np.array(x, dtype)
+        self.v = np.array(v, dtype)
+        self.dt = dtype(dt)
+        self.n = len(self.x)
+
+    def forces(self) -> np.ndarray:
+        d = self.x[self.a] - self.x[self.b]
+        length = np.linalg.norm(d, axis=1)
+        safe = np.where(length > 0, length, 1)
+        l = d / safe[:, None]
+        mag = self.k * (length - self.rest) + self.kd * np.einsum("ij,ij->i", self.v[self.a] - self.v[self.b], l)
+        fs = np.where(length[:, None] > 0, -mag[:, None] * l, 0)
+        f = np.empty_like(self.x)
+        for c in range(3):
+            f[:, c] = np.bincount(self.a, fs[:, c], self.n) - np.bincount(self.b, fs[:, c], self.n)
+        return f
+
+    def step(self, n: int = 1):
+        for _ in range(n):
+            self.v += self.dt * (self.g + self.forces() * self.inv_m)
+            self.x += self.dt * self.v
+
+
+def warp_available() -> bool:
+    try:
+        import warp  # noqa: F401
+    except Exception:  # noqa: BLE001 - any import problem means "not available"
+        return False
+    return True
+
+
+class WarpStepper:
+    """Semi-implicit Euler in NVIDIA Warp on ``device`` ("cpu" or "cuda")."""
+
+    def __init__(self, model, x, v, dt, precision="f64", device="cpu"):
+        import warp as wp
+
+        wp.config.quiet = True
+        wp.init()
+        self.wp = wp
+        self.device = device
+        real = wp.float64 if precision == "f64" else wp.float32
+        vec = wp.vec3d if precision == "f64" else wp.vec3f
+        npreal = np.float64 if precision == "f64" else np.float32
+        a, b, rest, k, kd, inv_m = spring_arrays(model)
+        self.springs, self.integrate = _warp_kernels(real, vec)
+        arr = lambda data, dtype: wp.array(np.ascontiguousarray(data), dtype=dtype, device=device)  # noqa: E731
+        self.a = arr(a.astype(np.int32), wp.int32)
+        self.b = arr(b.astype(np.int32), wp.int32)
+        self.rest, self.k, self.kd = (arr(t.astype(npreal), real) for t in (rest, k, kd))
+        self.inv_m = arr(inv_m.astype(npreal), real)
+        self.x = arr(np.asarray(x, npreal), vec)
+        self.v = arr(np.asarray(v, npreal), vec)
+        self.f = wp.zeros(len(x), dtype=vec, device=device)
+        self.g = vec(*model.gravity[None].to_numpy().astype(npreal).tolist())
+        self.dt = real(dt)
+        self.zero = real(0.0)
+        self.n_springs, self.n = len(a), len(x)
+
+    def step(self, n: int = 1):
+        """``n`` steps: clear forces, spring kernel (atomic adds), integrate kernel (as warp.sim does)."""
+        wp = self.wp
+        for _ in range(n):
+            self.f.zero_()
+            wp.launch(self.springs, dim=self.n_springs, device=self.device,
+                      inputs=[self.x, self.v, self.a, self.b, self.rest, self.k, self.kd, self.zero], outputs=[self.f])
+            wp.launch(self.integrate, dim=self.n, device=self.device,
+                      inputs=[self.inv_m, self.g, self.dt, self.zero, self.f], outputs=[self.x, self.v])
+
+    def sync(self):
+        self.wp.synchronize_device(self.device)
+
+    def numpy(self):
+        return self.x.numpy(), self.v.numpy()
+
+
+_WARP_KERNELS = None
+
+
+def _warp_kernels(real, vec):
+    """The two Warp kernels, generic over precision (Warp builds one overload per dtype)."""
+    global _WARP_KERNELS
+    if _WARP_KERNELS is not None:
+        return _WARP_KERNELS
+    import warp as wp
+
+    @wp.kernel
+    def springs(x: wp.array(dtype=Any), v: wp.array(dtype=Any), a: wp.array(dtype=wp.int32),
+                b: wp.array(dtype=wp.int32), rest: wp.array(dtype=Any), k: wp.array(dtype=Any),
+                kd: wp.array(dtype=Any), zero: Any, f: wp.array(dtype=Any)):
+        s = wp.tid()
+        i = a[s]
+        j = b[s]
+        d = x[i] - x[j]
+        length = wp.length(d)
+        if length > zero:
+            l = d / length
+            fs = -(k[s] * (length - rest[s]) + kd[s] * wp.dot(v[i] - v[j], l)) * l
+            wp.atomic_add(f, i, fs)
+            wp.atomic_sub(f, j, fs)
+
+    @wp.kernel
+    def integrate(inv_m: wp.array(dtype=Any), g: Any, dt: Any, zero: Any, f: wp.array(dtype=Any),
+                  x: wp.array(dtype=Any), v: wp.array(dtype=Any)):
+        i = wp.tid()
+        w = inv_m[i]
+        acc = f[i] * w
+        if w > zero:
+            acc = acc + g
+        vn = v[i] + dt * acc
+        v[i] = vn
+        x[i] = x[i] + dt * vn
+
+    _WARP_KERNELS = (springs, integrate)
+    return _WARP_KERNELS

@@ -1,0 +1,60 @@
+"""Benchmark machinery checked against known answers (speed itself is never asserted)."""
+import numpy as np
+import pytest
+
+from taichi_soft.bench.stability import largest_stable_dt
+from taichi_soft.integrators import make_integrator
+from taichi_soft.model import Model
+from taichi_soft.terrain import make_terrain
+
+
+def _single_spring(k, c, m=1.0):
+    """Two particles of mass m joined by one spring (stiffness k, damper c) of rest length 1."""
+    x0 = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    model = Model(x0=x0, v0=np.zeros_like(x0), mass=np.full(2, m), pairs=np.array([[0, 1]]),
+                  rest=np.array([1.0]), group=np.array([0]), group_k=np.array([k, k, k]),
+                  group_kd=np.array([c, c, c]), gravity=(0.0, 0.0, 0.0), bodies=[])
+    return model, make_terrain("none", 2, {}, 0.8, 0.3, 0.01)
+
+
+def _probe(model, terrain, name, steps=20000):
+    """Stable iff the oscillation's energy does not grow over ``steps`` steps (the bench's energy
+    criterion). The start is a tiny stretch, so the spring stays in its linear regime: a large
+    amplitude makes the lattice spring nonlinear (its push is bounded by k r) and can saturate an
+    instability before velocities blow up."""
+    integ = make_integrator(name, model, terrain)
+    state = model.state()
+    start = model.x0_np.copy()
+    start[1, 0] += 1e-6
+    k = model.group_k.to_numpy()[0]
+
+    def energy(x, v):
+        return 0.5 * np.sum(v * v) + 0.5 * k * (np.linalg.norm(x[1] - x[0]) - 1.0) ** 2
+
+    e0 = energy(start, np.zeros_like(start))
+
+    def stable(dt):
+        state.set(start, np.zeros_like(start))
+        integ.reset()
+        integ.advance(state, dt, steps)
+        return not integ.diverged and energy(*state.numpy()) <= 2 * e0
+
+    return stable
+
+
+def test_bisection_finds_explicit_euler_limit_of_damped_spring():
+    """Explicit Euler on m_r x'' + c x' + k x = 0 (underdamped) is stable iff dt <= c / k."""
+    k, c = 1000.0, 4.0  # reduced mass 0.5: c^2 = 16 < 4 m_r k = 2000
+    model, terrain = _single_spring(k, c)
+    res = largest_stable_dt(_probe(model, terrain, "explicit_euler"), 1e-4, 1e-1, rel_tol=0.005)
+    assert res["bounded"]
+    assert res["dt"] == pytest.approx(c / k, rel=0.03)
+
+
+def test_bisection_finds_rk4_limit_of_undamped_spring():
+    """RK4's stability region meets the imaginary axis at 2 sqrt 2: dt_max = 2 sqrt 2 / omega."""
+    k = 1000.0
+    model, terrain = _single_spring(k, 0.0)
+    omega = np.sqrt(k / 0.5)  # reduced mass m / 2
+    res = largest_stable_dt(_probe(model, terrain, "rk4", steps=40000), 1e-4, 1e-1, rel_tol=0.005)
+    assert res["dt"] == pytest.approx(2 * np.sqrt(2) / omega, rel=0.03)
