@@ -10,10 +10,10 @@ import json
 import math
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 from .errors import UserError
+from .outfiles import write_atomic
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 2, 3
 # The main job (`python main.py`): the assignment's cube dropped on the plane.
@@ -65,22 +65,6 @@ def _check_parent(p: Path, flag: str, path: str):
         raise UserError(f"{flag} {path}: cannot create directory {parent}: {e.strerror}") from None
     if not os.access(parent, os.W_OK):
         raise UserError(f"{flag} {path}: directory {parent} is not writable")
-
-
-def write_atomic(path: Path, write) -> None:
-    """Write through a temporary file in the same directory, then rename over ``path``.
-
-    A crash mid-write never leaves a half-written file where the user's old one was.
-    """
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def finite_or_none(obj):
@@ -320,6 +304,18 @@ def cmd_compare(args) -> int:
     return EXIT_OK
 
 
+def cmd_demo(args) -> int:
+    """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
+    scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
+    screenshot = check_output_path(args.screenshot, "--screenshot", [".png"])
+    start_taichi(args)
+    from .demo.app import run_demo
+
+    run_demo(args.scene, args.set, args.integrator, args.dt, tuple(scene.data["render"]["resolution"]),
+             frames=args.frames, screenshot=screenshot)
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="main.py", description="taichi-soft: mass-spring soft bodies on Taichi")
     sub = parser.add_subparsers(dest="command", parser_class=_Parser)
@@ -335,6 +331,14 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"comma-separated integrator names, one tile each (default: {DEFAULT_COMPARE})")
     add_render_args(p_cmp, mesh_export=False)
     p_cmp.set_defaults(func=cmd_compare)
+    p_demo = sub.add_parser("demo", help="open the interactive classroom window (needs a display and Vulkan)")
+    add_scene_args(p_demo)
+    p_demo.add_argument("--resolution", type=_resolution_arg, metavar="WxH", default=[1280, 800],
+                        help="window size in pixels (default: 1280x800)")
+    # Hidden, for tests and docs: render N frames, save the window to PATH, exit.
+    p_demo.add_argument("--frames", type=int, help=argparse.SUPPRESS)
+    p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
+    p_demo.set_defaults(func=cmd_demo)
     p_list = sub.add_parser("list", help="list scenes, integrators and backends")
     p_list.set_defaults(func=cmd_list)
     return parser

@@ -1,0 +1,14 @@
+"""Offscreen rendering on top of the physics (which never imports this package).
+
+camera.py    scene / default cameras, GGUI's view and projection matrices (numpy)
+meshes.py    terrain meshes matching the collision shapes; bodies' surface mesh on the device
+renderer.py  the hidden GGUI window and what one simulation draws into it
+overlay.py   text drawn onto frames with Pillow
+outputs.py   video files, PNG folders, the background writer thread; all written atomically
+export.py    per-frame surface meshes as PLY or OBJ
+recorder.py  one run's frames: render, overlay, hand to the writers (``main.py run --video``)
+compare.py   integrators side by side in one mosaic video (``main.py compare``)
+benchmark.py per-stage rendering cost (``python -m taichi_soft.render.benchmark``)
+
+See docs/rendering.md.
+"""

@@ -107,13 +107,14 @@ def _fit_distance(spheres, center, direction, up, half_v: float, half_h: float) 
     return distance
 
 
-def default_camera(scene_data: dict, aspect: float) -> CameraSpec:
+def default_camera(scene_data: dict, aspect: float, top_margin: float = 0.0) -> CameraSpec:
     """A camera for a scene without ``[render.camera]``: everything that matters is in frame.
 
     What matters, as spheres: the bodies at the start, and where they end up on the terrain (the
     footprint on a plane, the ball, the bowl). The camera looks at the middle of their bounding
     box from the terrain's default angles, at the least distance where all of them fit.
-    ``aspect`` = width / height of the image.
+    ``aspect`` = width / height of the image; ``top_margin`` = fraction of the image height kept
+    free at the top (for the text overlay): the action is fitted into the part below it.
     """
     terrain = scene_data["terrain"]
     kind = terrain["kind"]
@@ -143,18 +144,23 @@ def default_camera(scene_data: dict, aspect: float) -> CameraSpec:
     direction = _unit(math.cos(elevation) * (math.cos(azimuth) * frame_a + math.sin(azimuth) * frame_b)
                       + math.sin(elevation) * frame_n)
     up = np.array([0.0, 1.0, 0.0])
-    half_v = math.radians(DEFAULT_FOV) / 2
-    half_h = math.atan(math.tan(half_v) * aspect)
-    distance = _fit_distance(spheres, center, direction, up, half_v, half_h)
-    return CameraSpec(tuple(center + distance * direction), tuple(center), tuple(up), DEFAULT_FOV, kind in _FOLLOW)
+    tan_v = math.tan(math.radians(DEFAULT_FOV) / 2)
+    half_h = math.atan(tan_v * aspect)
+    distance = _fit_distance(spheres, center, direction, up, math.atan(tan_v * (1 - top_margin)), half_h)
+    # Raise the camera (and its aim) so the fitted action sits centred in the part below the margin.
+    right = _unit(np.cross(-direction, up))
+    shift = top_margin * tan_v * distance * np.cross(right, -direction)
+    lookat = center + shift
+    return CameraSpec(tuple(lookat + distance * direction), tuple(lookat), tuple(up), DEFAULT_FOV, kind in _FOLLOW)
 
 
-def scene_camera(scene_data: dict, aspect: float, follow: bool | None = None) -> CameraSpec:
+def scene_camera(scene_data: dict, aspect: float, follow: bool | None = None, top_margin: float = 0.0) -> CameraSpec:
     """The scene's ``[render.camera]`` keys over the default camera; ``follow`` overrides tracking.
 
-    A scene that sets ``position`` or ``lookat`` gets a fixed camera unless ``follow`` is True.
+    A scene that sets any camera key gets a fixed camera unless ``follow`` is True.
+    ``top_margin`` only shapes the default camera (see ``default_camera``).
     """
-    cam = default_camera(scene_data, aspect)
+    cam = default_camera(scene_data, aspect, top_margin)
     given = scene_data["render"].get("camera", {})
     if given:
         cam = replace(cam, follow=False, **{k: (tuple(v) if isinstance(v, list) else float(v)) for k, v in given.items()})

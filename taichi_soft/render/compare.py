@@ -165,7 +165,7 @@ class Comparison:
             subtitle = f"dt = {self.dt:g} s | t = {time:.3f} s | E = {overlay.energy_text(energy)}"
             if diverged_at is not None:
                 overlay.dim(cell)
-                overlay.draw_banner(cell, f"diverged at t = {diverged_at:.4f} s", size=max(10, th // 12))
+                overlay.draw_banner(cell, f"diverged at t = {diverged_at:.4f} s", size=max(10, th // 12), y=0.45)
                 subtitle = f"dt = {self.dt:g} s | frozen at t = {time:.3f} s"
             overlay.draw_title(cell, name, subtitle)
         for k in range(len(tiles), self.cols * self.rows):  # unused cells carry the legend

@@ -172,6 +172,7 @@ class SurfaceMesh:
         self.normals = ti.Vector.field(3, ti.f32, nv)
         self.indices = ti.field(ti.i32, 3 * self.n_triangles)
         self.indices.from_numpy(self.triangles_np.ravel())
+        self.index_array = self.triangles_np.ravel()  # host copy for GGUI, alive as long as the mesh
 
     @ti.kernel
     def update(self, x: ti.template()):

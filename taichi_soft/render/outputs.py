@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import queue
-import secrets
 import shutil
 import tempfile
 import threading
@@ -17,24 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..outfiles import reserve_temp
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
-
-
-def _reserve_temp(path: Path) -> Path:
-    """A new empty file beside ``path`` with the same suffix (ffmpeg picks the format by it).
-
-    Created with the usual permissions (0666 less the umask), unlike ``tempfile.mkstemp``'s 0600,
-    because it becomes the user's file.
-    """
-    for _ in range(100):
-        tmp = path.with_name(f".{path.stem}.{os.getpid()}.{secrets.token_hex(4)}{path.suffix}")
-        try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-            return tmp
-        except FileExistsError:
-            continue
-    raise UserError(f"cannot create a temporary file beside {path}")
 
 
 class VideoFile:
@@ -47,7 +31,7 @@ class VideoFile:
         import imageio_ffmpeg
 
         self.path = Path(path)
-        self.tmp = _reserve_temp(self.path)
+        self.tmp = reserve_temp(self.path)
         if self.path.suffix.lower() == ".gif":
             # One palette for the whole clip (ffmpeg buffers the frames to build it): far better
             # colours than the fixed 8-bit palette GIF encoders use by default.

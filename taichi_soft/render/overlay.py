@@ -20,6 +20,7 @@ PANEL = (12, 16, 24)  # dark backing behind text, drawn at PANEL_ALPHA
 PANEL_ALPHA = 0.62
 TEXT = (240, 242, 245)
 ALERT = (215, 38, 38)
+INFO_MARGIN = 0.14  # fraction of the height the info panel covers at the top (cameras keep it clear)
 
 
 @lru_cache(maxsize=32)
@@ -91,14 +92,16 @@ def _panel(img: np.ndarray, box, text_rows, fill=PANEL, alpha=PANEL_ALPHA):
 
 
 def _text_size(text: str, f) -> tuple[int, int]:
-    left, top, right, bottom = f.getbbox(text)
-    return right, bottom
+    """(width, line height) in pixels; the height is the font's, so every label of a size matches."""
+    ascent, descent = f.getmetrics() if hasattr(f, "getmetrics") else (f.getbbox("Ag")[3], 0)
+    return f.getbbox(text)[2], ascent + descent
 
 
 def draw_info(img: np.ndarray, lines: list[str], size: int | None = None) -> None:
-    """Lines of text in a panel at the top left; ``size`` [px] defaults to 1/30 of the height."""
+    """Lines of text in a panel at the top left; ``size`` [px] defaults to 1/34 of the height
+    (three lines then fill ``INFO_MARGIN`` of it)."""
     h = img.shape[0]
-    size = size or max(9, round(h / 30))
+    size = size or max(9, round(h / 34))
     f = font(size)
     pad, step = max(2, size // 3), round(size * 1.3)
     width = max(_text_size(line, f)[0] for line in lines)
@@ -122,23 +125,25 @@ def draw_banner(img: np.ndarray, text: str, size: int | None = None, y: float = 
 
 
 def draw_title(img: np.ndarray, title: str, subtitle: str = "", size: int | None = None) -> None:
-    """A big label (compare tiles) at the top left: bold ``title`` and a smaller ``subtitle``."""
+    """A big label (compare tiles) at the bottom left: bold ``title`` over a smaller ``subtitle``.
+
+    At the bottom because default cameras put the foreground terrain there, not the bodies.
+    """
     h = img.shape[0]
-    size = size or max(11, round(h / 9))
+    size = size or max(11, round(h / 11))
     big, small = font(size, "bold"), font(max(8, size * 9 // 20))
     pad = max(2, size // 5)
     tw, th = _text_size(title, big)
-    rows = [(2 * pad, pad, title, big, TEXT)]
-    bottom = pad + th + pad
+    sw, sh = _text_size(subtitle, small) if subtitle else (0, 0)
+    height = pad + th + (pad + sh if subtitle else 0) + 2 * pad
+    top = h - height
+    rows = [(2 * pad, top + pad, title, big, TEXT)]
     if subtitle:
-        sw, sh = _text_size(subtitle, small)
-        rows.append((2 * pad, bottom, subtitle, small, TEXT))
-        tw = max(tw, sw)
-        bottom += sh + pad
-    _panel(img, (0, 0, tw + 4 * pad, bottom + pad), rows)
+        rows.append((2 * pad, top + 2 * pad + th, subtitle, small, TEXT))
+    _panel(img, (0, top, max(tw, sw) + 4 * pad, h), rows)
 
 
-def dim(img: np.ndarray, amount: float = 0.45) -> None:
+def dim(img: np.ndarray, amount: float = 0.35) -> None:
     """Darken and desaturate ``img`` in place (a frozen, diverged tile)."""
     grey = img.mean(axis=2, keepdims=True)
     img[:] = ((0.5 * img + 0.5 * grey) * (1 - amount)).astype(np.uint8)

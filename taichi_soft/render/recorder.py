@@ -64,7 +64,8 @@ class FrameRecorder:
             if self.renderer is not None:
                 self.view = SimulationView(sim, options.surface, options.particles, options.springs)
             self.surface = self.view.surface if self.view else SurfaceMesh(sim.model)
-            self.camera = scene_camera(sim.scene.data, width / height, options.follow)
+            self.camera = scene_camera(sim.scene.data, width / height, options.follow,
+                                       overlay.INFO_MARGIN if options.overlay else 0.0)
             self.info = overlay.run_info(sim)
             self.image_sinks = open_image_sinks(options.video, options.frames, options.fps, (width, height))
             if options.mesh_dir:

@@ -6,6 +6,11 @@ simulation draws: its surface mesh, terrain meshes and optional particles and sp
 ``renderer.render(view, camera)`` returns the frame as uint8 RGB [height, width, 3].
 """
 
+import contextlib
+import os
+import sys
+import tempfile
+
 import numpy as np
 import taichi as ti
 
@@ -22,15 +27,39 @@ KEY_LIGHT = (0.72, 0.70, 0.66)  # warm, above and left of the camera
 FILL_LIGHT = (0.18, 0.20, 0.24)  # cool, from the other side: faces turned away stay readable
 
 
+@contextlib.contextmanager
+def _stderr_captured():
+    """Divert file descriptor 2 (where Taichi's C++ side prints, e.g. "RHI Error: Can not create
+    Vulkan instance") into a buffer; the yielded list receives the text on exit."""
+    sys.stderr.flush()
+    text: list[str] = []
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield text
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            text.append(sink.read().decode(errors="replace"))
+
+
+def _last_line(text: str) -> str:
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    return lines[-1] if lines else ""
+
+
 def open_window(width: int, height: int):
     """A hidden GGUI window; no Vulkan device raises ``UserError`` with one line saying so."""
-    try:
-        return ti.ui.Window("taichi-soft", (width, height), show_window=False, vsync=False)
-    except Exception as e:  # noqa: BLE001 - GGUI raises a bare RuntimeError for a missing device
-        reason = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
-        raise UserError(f"offscreen rendering needs a Vulkan device and none is usable here ({reason}); "
-                        "install a Vulkan driver (without a GPU: Mesa's lavapipe, package mesa-vulkan-drivers)"
-                        ) from None
+    with _stderr_captured() as native:
+        try:
+            return ti.ui.Window("taichi-soft", (width, height), show_window=False, vsync=False)
+        except Exception as e:  # noqa: BLE001 - GGUI raises a bare RuntimeError for a missing device
+            error = e
+    reason = "; ".join(r for r in (_last_line(str(error)) or type(error).__name__, _last_line(native[0])) if r)
+    raise UserError(f"offscreen rendering needs a Vulkan device and none is usable here ({reason}); "
+                    "install a Vulkan driver (without a GPU: Mesa's lavapipe, package mesa-vulkan-drivers)")
 
 
 class _StaticMesh:
@@ -41,11 +70,11 @@ class _StaticMesh:
         self.vertices = ti.Vector.field(3, ti.f32, n)
         self.normals = ti.Vector.field(3, ti.f32, n)
         self.colors = ti.Vector.field(3, ti.f32, n)
-        self.indices = ti.field(ti.i32, mesh.triangles.size)
         self.vertices.from_numpy(mesh.vertices.astype(np.float32))
         self.normals.from_numpy(mesh.normals.astype(np.float32))
         self.colors.from_numpy(mesh.colors.astype(np.float32))
-        self.indices.from_numpy(mesh.triangles.astype(np.int32).ravel())
+        # Indices go to GGUI as a numpy array we keep alive (see ``Renderer`` on why).
+        self.indices = np.ascontiguousarray(mesh.triangles, dtype=np.int32).ravel()
         self.two_sided = mesh.two_sided
 
     def draw(self, scene):
@@ -70,14 +99,14 @@ class SimulationView:
         self.points = None
         if particles or springs:
             self.points = ti.Vector.field(3, ti.f32, model.n_particles)
-        # Particle radius [m]: a fifth of the finest lattice spacing, so neighbours never touch.
-        self.particle_radius = 0.2 * min(b.spec.size / (b.spec.n - 1) for b in model.bodies)
+        # Particle radius [m]: a tenth of the finest lattice spacing (GGUI draws them as screen-facing
+        # spheres that look larger than that), so neighbours stay apart.
+        self.particle_radius = 0.1 * min(b.spec.size / (b.spec.n - 1) for b in model.bodies)
         self.spring_ranges = {}
         if springs and model.n_springs:
             kind = model.group_np % 3
             order = np.argsort(kind, kind="stable")  # springs grouped by kind: one draw call each
-            self.spring_indices = ti.field(ti.i32, 2 * model.n_springs)
-            self.spring_indices.from_numpy(model.pairs_np[order].astype(np.int32).ravel())
+            self.spring_indices = np.ascontiguousarray(model.pairs_np[order], dtype=np.int32).ravel()
             counts = np.bincount(kind, minlength=3)
             starts = np.concatenate([[0], np.cumsum(counts)])
             self.spring_ranges = {name: (2 * int(starts[k]), 2 * int(counts[k])) for k, name in enumerate(SPRING_KINDS)}
@@ -100,7 +129,7 @@ class SimulationView:
         s = self.surface
         if self.show_surface:
             for b, (_, _, first, count) in enumerate(s.bodies):
-                scene.mesh(s.vertices, s.indices, s.normals, color=BODY_COLORS[b % len(BODY_COLORS)],
+                scene.mesh(s.vertices, s.index_array, s.normals, color=BODY_COLORS[b % len(BODY_COLORS)],
                            index_offset=first, index_count=count)
         if self.show_springs:
             for name, (first, count) in self.spring_ranges.items():
@@ -112,7 +141,13 @@ class SimulationView:
 
 
 class Renderer:
-    """A hidden ``width`` x ``height`` pixel GGUI window that renders views to numpy images."""
+    """A hidden ``width`` x ``height`` pixel GGUI window that renders views to numpy images.
+
+    Triangle and line indices are handed to GGUI as numpy arrays owned by the views. Given a
+    Taichi field instead, GGUI 1.7.4 copies it into a temporary numpy array per draw call and
+    keeps only a raw pointer to it; when several draws share one index field (a body per draw),
+    meshes intermittently went missing from frames.
+    """
 
     def __init__(self, width: int, height: int):
         self.width, self.height = int(width), int(height)

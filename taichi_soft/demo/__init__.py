@@ -1,0 +1,7 @@
+"""The interactive classroom demo (``python main.py demo``): a GGUI window with live controls.
+
+``controller`` holds what the controls change in the simulation (plain Python, tested without a
+window); ``pacing`` decides how many steps each frame takes; ``hud`` turns the state into text and
+plot geometry; ``textmesh`` rasterises large text into 2D triangles GGUI can draw; ``app`` is the
+window itself and ``capture`` its screenshots and recordings.
+"""

@@ -1,0 +1,322 @@
+"""The demo window: the scene as the renderer draws it, ImGui controls, keys and the HUD.
+
+One frame: read keys, take the steps the ``Pacer`` allows, pull the state onto the draw fields,
+draw terrain, body and springs with ``render.renderer.SimulationView``, overlay the HUD (large
+outlined text and the energy plot, ``hud``) and the ImGui control panel, show. Everything the
+controls change goes through ``DemoController``; nothing here touches physics directly.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import taichi as ti
+
+from ..lattice import SPRING_KINDS
+from ..render.camera import CameraSpec, scene_camera
+from ..render.renderer import BACKGROUND, SPRING_COLORS, Renderer, SimulationView
+from . import hud
+from .canvas2d import Batch2D
+from .capture import Recording, default_path
+from .controller import DemoController
+from .display import open_demo_window
+from .pacing import Pacer
+
+PANEL_X, PANEL_W = 0.7, 0.3  # ImGui control panel: right 30 % of the window
+OVERLAY_VERTICES = 400_000  # capacity of the HUD triangle buffer (text is ~10k per line)
+HUD_MARGIN = 0.2  # fraction of the height the HUD text covers at the top (default camera keeps clear)
+DRAW_KEYS = {"1": "surface", "2": "particles", "3": "stretch", "4": "shear", "5": "bend"}
+
+
+def _changed(new: float, old: float) -> bool:
+    """ImGui sliders hand back float32: ignore round-off so an untouched slider sets nothing."""
+    return abs(new - old) > 1e-6 * max(1.0, abs(old))
+
+
+def _left_of_panel(spec: CameraSpec, aspect: float) -> CameraSpec:
+    """The camera slid sideways so the action it framed is centred left of the control panel.
+
+    Moving eye and target by d along the camera's right moves the image by d / (depth tan(half
+    width angle)) half-widths; the panel covers ``PANEL_W`` of the width, so slide by half of it.
+    """
+    eye, target = np.asarray(spec.position, float), np.asarray(spec.lookat, float)
+    back = eye - target
+    distance = np.linalg.norm(back)
+    right = np.cross(-back, spec.up)
+    right /= max(np.linalg.norm(right), 1e-12)
+    half_w = np.tan(np.radians(spec.fov) / 2) * aspect * distance
+    shift = PANEL_W * half_w * right
+    return replace(spec, position=tuple(eye + shift), lookat=tuple(target + shift))
+
+
+class DemoApp:
+    """``DemoApp(controller, (width, height)).run()`` opens the window and runs until closed."""
+
+    def __init__(self, controller: DemoController, size=(1280, 800), window=None):
+        self.ctl = controller
+        self.size = tuple(size)
+        self.window = window or open_demo_window("taichi-soft demo", self.size)
+        self.canvas = self.window.get_canvas()
+        self.scene = self.window.get_scene()
+        self.gui = self.window.get_gui()
+        self.camera = ti.ui.Camera()
+        self.pacer = Pacer()
+        self.draw = {"surface": True, "particles": False, "stretch": False, "shear": False, "bend": False}
+        self.follow = False
+        self.notice: str | None = None  # last screenshot / recording message
+        self.recording: Recording | None = None
+        self.stats: dict = {}
+        self._generation = None
+        self._pending: dict = {}  # choice sliders being dragged: label -> option shown
+        self._overlay_v = ti.Vector.field(2, ti.f32, OVERLAY_VERTICES)
+        self._overlay_c = ti.Vector.field(3, ti.f32, OVERLAY_VERTICES)
+        self._sync_view()
+
+    # -- scene and camera -------------------------------------------------------------------
+    def _sync_view(self):
+        """(Re)build the draw fields and the default camera after the simulation was replaced."""
+        if self._generation == self.ctl.generation:
+            return
+        self._generation = self.ctl.generation
+        self.view = SimulationView(self.ctl.sim, surface=True, particles=True, springs=True)
+        self.reset_camera()
+
+    def reset_camera(self):
+        """Back to the scene's default camera (tracking the bodies on the tilted plane)."""
+        spec = _left_of_panel(scene_camera(self.ctl.sim.scene.data, self.size[0] / self.size[1], top_margin=HUD_MARGIN),
+                              self.size[0] / self.size[1])
+        self.follow = spec.follow
+        self._fov = spec.fov
+        self._distance = float(np.linalg.norm(np.subtract(spec.position, spec.lookat)))
+        self._com = None
+        c = self.camera
+        c.position(*spec.position)
+        c.lookat(*spec.lookat)
+        c.up(*spec.up)
+        c.fov(spec.fov)
+
+    def _update_camera(self, com):
+        c = self.camera
+        # Right-drag turns the view, WASD/QE move; steps scale with how far away the scene is.
+        c.track_user_inputs(self.window, movement_speed=self._distance / 150, hold_key=ti.ui.RMB)
+        if self.follow and com is not None and np.all(np.isfinite(com)):
+            if self._com is not None:
+                delta = np.asarray(com) - self._com
+                c.position(*(c.curr_position.to_numpy() + delta))
+                c.lookat(*(c.curr_lookat.to_numpy() + delta))
+            self._com = np.asarray(com, dtype=np.float64)
+        eye = c.curr_position.to_numpy()
+        front = c.curr_lookat.to_numpy() - eye
+        front /= max(np.linalg.norm(front), 1e-12)
+        # track_user_inputs keeps the look-at point 1 m ahead; the lights are placed from the
+        # camera-to-target distance, so aim at the original distance to keep the lighting fixed.
+        spec = CameraSpec(tuple(eye), tuple(eye + self._distance * front), tuple(c.curr_up.to_numpy()), self._fov)
+        # The renderer's camera-and-lights setup, applied to this window's scene and camera.
+        Renderer._set_camera(SimpleNamespace(scene=self.scene, camera=c), spec)
+
+    # -- one frame --------------------------------------------------------------------------
+    def frame(self):
+        self._handle_keys()
+        self._sync_view()
+        ctl = self.ctl
+        s = ctl.settings
+        stepped = 0
+        if s.paused or ctl.message:
+            self.pacer.pause()
+        else:
+            n = self.pacer.plan(ctl.sim.dt, s.slow_motion)
+            start = time.perf_counter()
+            stepped = ctl.step(n)
+            self.pacer.record(stepped, time.perf_counter() - start, ctl.sim.dt)
+        measures = ctl.sample()
+        if stepped:
+            self.stats = ctl.solver_stats()  # iteration counts of the steps just taken
+        if not ctl.message:
+            self.view.update()  # after a divergence the last good shape stays on screen
+        self._update_camera(measures["center_of_mass"] if measures else None)
+        self._draw_scene()
+        self._draw_hud()
+        self._draw_panel()
+        if self.recording is not None:
+            self.recording.add(self.window)
+
+    def _draw_scene(self):
+        v = self.view
+        v.show_surface, v.show_particles, v.show_springs = self.draw["surface"], self.draw["particles"], False
+        v.draw(self.scene)
+        # Springs kind by kind (the view draws all kinds or none), in the renderer's colours.
+        for kind in SPRING_KINDS:
+            first, count = v.spring_ranges.get(kind, (0, 0))
+            if self.draw[kind] and count:
+                self.scene.lines(v.points, width=1.0, indices=v.spring_indices, color=SPRING_COLORS[kind],
+                                 index_offset=first, index_count=count)
+        self.canvas.set_background_color(BACKGROUND)
+        self.canvas.scene(self.scene)
+
+    def _draw_hud(self):
+        batch = Batch2D(self.size)
+        notice = self.notice
+        if self.recording is not None:
+            notice = f"recording {self.recording.path} (V stops)"
+        hud.draw_hud(batch, self.ctl, self.pacer, self.stats, notice, width=round(PANEL_X * self.size[0]))
+        verts, colors = batch.triangles()
+        n = min(len(verts), OVERLAY_VERTICES) // 3 * 3
+        # Unused vertices sit off-canvas: their triangles are clipped away.
+        buf_v = np.full((OVERLAY_VERTICES, 2), -2.0, np.float32)
+        buf_c = np.zeros((OVERLAY_VERTICES, 3), np.float32)
+        buf_v[:n], buf_c[:n] = verts[:n], colors[:n]
+        self._overlay_v.from_numpy(buf_v)
+        self._overlay_c.from_numpy(buf_c)
+        self.canvas.triangles(self._overlay_v, per_vertex_color=self._overlay_c)
+
+    # -- controls ---------------------------------------------------------------------------
+    def _handle_keys(self):
+        for e in self.window.get_events(ti.ui.PRESS):
+            key = e.key
+            if key == ti.ui.ESCAPE:
+                self.window.running = False
+            elif key == ti.ui.SPACE:
+                self.ctl.toggle_pause()
+            elif key == "n":
+                self._single_step()
+            elif key == "r":
+                self.ctl.reset()
+            elif key == "m":
+                self.ctl.set_slow_motion(0.25 if self.ctl.settings.slow_motion == 1.0 else 1.0)
+            elif key == "c":
+                self.reset_camera()
+            elif key == "p":
+                self.screenshot()
+            elif key == "v":
+                self.toggle_recording()
+            elif key in DRAW_KEYS:
+                self.draw[DRAW_KEYS[key]] = not self.draw[DRAW_KEYS[key]]
+
+    def _single_step(self):
+        self.ctl.settings.paused = True
+        self.ctl.step(1)
+
+    def _choice(self, g, label: str, options: list[str], current: str) -> str | None:
+        """A slider over ``options`` named in its label; returns a new choice once the mouse is
+        released (dragging past an integrator must not build it: that compiles its kernels)."""
+        shown = self._pending.get(label, current)
+        choice = options[g.slider_int(f"{label}: {shown}###{label}", options.index(shown), 0, len(options) - 1)]
+        if self.window.is_pressed(ti.ui.LMB):
+            if choice != current:
+                self._pending[label] = choice
+            return None
+        self._pending.pop(label, None)
+        return choice if choice != current else None
+
+    def _draw_panel(self):
+        ctl, s, g = self.ctl, self.ctl.settings, self.gui
+        with g.sub_window("Controls (ImGui)", PANEL_X, 0.0, PANEL_W, 1.0):
+            if g.button("Pause (Space)" if not s.paused else "Play (Space)"):
+                ctl.toggle_pause()
+            if g.button("Single step (N)"):
+                self._single_step()
+            if g.button("Reset (R)"):
+                ctl.reset()
+            slow = g.checkbox("Slow motion (M)", s.slow_motion < 1.0)
+            if slow != (s.slow_motion < 1.0):
+                ctl.set_slow_motion(0.25 if slow else 1.0)
+            if s.slow_motion < 1.0:
+                f = g.slider_float("speed x###slow", s.slow_motion, 0.02, 0.99)
+                if _changed(f, s.slow_motion):
+                    ctl.set_slow_motion(f)
+            picked = self._choice(g, "integrator", ctl.integrator_names(), s.integrator)
+            if picked:
+                self._guard(ctl.set_integrator, picked)
+            picked = self._choice(g, "terrain", ctl.terrain_kinds(), s.terrain)
+            if picked:
+                self._guard(ctl.set_terrain, picked)
+                self._sync_view()
+            # Log sliders show log10 of the value; the label gives the value itself.
+            self._log_slider(g, f"dt {s.dt:.2g} s###dt", s.dt, 1e-5, 3e-2, ctl.set_dt)
+            for kind in SPRING_KINDS:
+                self._log_slider(g, f"k {kind} {s.stiffness[kind]:.3g}###k{kind}", s.stiffness[kind], 10.0, 1e6,
+                                 lambda k, kind=kind: ctl.set_stiffness(kind, k))
+            self._slider(g, "damping N s/m###damping", s.damping, 0.0, 200.0, ctl.set_damping)
+            self._slider(g, "restitution###rest", s.restitution, 0.0, 1.0, lambda v: ctl.set_contact(restitution=v))
+            self._slider(g, "friction###fric", s.friction, 0.0, 1.5, lambda v: ctl.set_contact(friction=v))
+            self._slider(g, "particle kg###mass", s.particle_mass, 0.05, 10.0, ctl.set_particle_mass)
+            self._slider(g, "gravity m/s2###g", s.gravity, 0.0, 30.0, ctl.set_gravity)
+            g.text("Start pose (applies on reset):")
+            self._slider(g, "height m###height", s.height, -2.0, 30.0, lambda v: ctl.set_pose(height=v))
+            self._slider(g, "rotation deg###rot", s.rotation, -90.0, 90.0, lambda v: ctl.set_pose(rotation=v))
+            for key, name in DRAW_KEYS.items():
+                self.draw[name] = g.checkbox(f"draw {name} ({key})", self.draw[name])
+            self.follow = g.checkbox("camera follows the cube", self.follow)
+            if g.button("Reset camera (C)"):
+                self.reset_camera()
+            if g.button("Screenshot (P)"):
+                self.screenshot()
+            if g.button("Stop recording (V)" if self.recording else "Record MP4 (V)"):
+                self.toggle_recording()
+
+    def _slider(self, g, label, value, lo, hi, apply):
+        new = g.slider_float(label, value, lo, hi)
+        if _changed(new, value):
+            self._guard(apply, float(new))
+
+    def _log_slider(self, g, label, value, lo, hi, apply):
+        """A slider over log10(value): equal travel per decade, for dt and stiffness."""
+        exponent = g.slider_float(label, float(np.log10(value)), float(np.log10(lo)), float(np.log10(hi)))
+        if _changed(exponent, float(np.log10(value))):
+            self._guard(apply, float(10.0 ** exponent))
+
+    def _guard(self, action, *args):
+        """Run a control's action; an error (e.g. a solver refusing a value) is shown, never raised."""
+        try:
+            action(*args)
+        except Exception as e:  # noqa: BLE001 - the window must not crash on a control
+            self.notice = f"{type(e).__name__}: {e}".splitlines()[0]
+
+    # -- capture ----------------------------------------------------------------------------
+    def screenshot(self, path=None):
+        """Save the window (ImGui included) as PNG, by default under out/."""
+        path = path or default_path("shot", self.ctl.sim.scene.name, ".png")
+        self.window.save_image(str(path))
+        self.notice = f"saved {path}"
+        return path
+
+    def toggle_recording(self):
+        try:
+            if self.recording is None:
+                self.recording = Recording(default_path("rec", self.ctl.sim.scene.name, ".mp4"), self.size)
+            else:
+                path = self.recording.stop()
+                self.recording = None
+                self.notice = f"saved {path}"
+        except Exception as e:  # noqa: BLE001 - no ffmpeg, disk full: say so, keep running
+            self.recording = None
+            self.notice = f"recording failed: {e}".splitlines()[0]
+
+    # -- main loop --------------------------------------------------------------------------
+    def run(self, frames: int | None = None, screenshot=None) -> None:
+        """Run until the window closes, or for ``frames`` frames; then save ``screenshot`` if given."""
+        done = 0
+        try:
+            while self.window.running and (frames is None or done < frames):
+                self.frame()
+                done += 1
+                if screenshot is not None and frames is not None and done == frames:
+                    self.window.save_image(str(screenshot))
+                self.window.show()
+        finally:
+            if self.recording is not None:
+                self.toggle_recording()
+            self.window.destroy()
+
+
+def run_demo(scene="plane", overrides=(), integrator=None, dt=None, size=(1280, 800), frames=None, screenshot=None):
+    """Open the window, build the simulation and run (Taichi must be initialised).
+
+    The window comes first: without a display or Vulkan that fails in one line before seconds
+    of kernel compilation.
+    """
+    window = open_demo_window("taichi-soft demo", size)
+    ctl = DemoController(scene, overrides, integrator, dt)
+    DemoApp(ctl, size, window).run(frames, screenshot)

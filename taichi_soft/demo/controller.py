@@ -1,0 +1,303 @@
+"""What the demo's controls do to the simulation: plain Python, no window, driven by tests.
+
+``DemoController`` owns one ``Simulation`` and applies every control through the engine's public
+run-time parameters (fields and kernel arguments), so a slider never triggers a recompile:
+
+* integrator: switched live, continuing from the current state. Each integrator is built once
+  per terrain and kept (building one compiles its kernels, 1-7 s on a CPU);
+* terrain: a new ``Simulation`` of the same scene with ``terrain.kind`` overridden (its kernels
+  are compiled for that shape only, see ``taichi_soft.terrain``); every other setting is carried
+  over and the cube starts again from its initial state;
+* dt, stiffness, damping, restitution, friction, particle mass, gravity: live, next step;
+* drop height and rotation: change the initial pose, applied on ``reset()``.
+
+A step that diverges, or any error the engine raises while stepping, pauses the simulation and
+leaves a one-line ``message``; ``reset()`` clears it. The controller never raises from a step.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import UserError
+from ..integrators import REGISTRY, make_integrator
+from ..lattice import SPRING_KINDS, rotation_matrix
+from ..scene import load_scene
+from ..simulation import Simulation
+from ..terrain import KINDS as TERRAIN_KINDS
+
+HISTORY = 240  # energy samples kept for the HUD plot (one per frame: a few seconds)
+ENERGY_KEYS = ("kinetic_energy", "spring_energy", "gravity_energy", "total_energy")
+
+
+@dataclass
+class Settings:
+    """The values the controls show and set. Units: SI (s, N/m, N s/m, kg, m, degrees, m/s^2)."""
+
+    integrator: str
+    terrain: str
+    dt: float
+    stiffness: dict  # spring kind -> k [N/m] (applied to every body)
+    damping: float  # damper coefficient [N s/m] of every spring kind and body
+    restitution: float  # [0, 1]
+    friction: float  # Coulomb coefficient >= 0
+    particle_mass: float  # [kg], every particle
+    height: float  # height [m] of the first body's centre at reset
+    rotation: float  # first body's rotation [degrees] about its scene axis at reset
+    gravity: float  # magnitude [m/s^2] along the scene's gravity direction
+    paused: bool = False
+    slow_motion: float = 1.0  # simulated seconds per wall-clock second wanted (1 = real time)
+
+
+@dataclass
+class EnergyHistory:
+    """Recent energy samples [J] for the HUD plot: ``t`` [s] and one list per ``ENERGY_KEYS``."""
+
+    t: list = field(default_factory=list)
+    values: dict = field(default_factory=lambda: {k: [] for k in ENERGY_KEYS})
+
+    def add(self, time: float, measures: dict):
+        self.t.append(time)
+        for k in ENERGY_KEYS:
+            self.values[k].append(measures[k])
+        if len(self.t) > HISTORY:
+            del self.t[0]
+            for k in ENERGY_KEYS:
+                del self.values[k][0]
+
+    def clear(self):
+        self.t.clear()
+        for k in ENERGY_KEYS:
+            self.values[k].clear()
+
+
+class DemoController:
+    """The simulation behind the demo window and every control applied to it.
+
+    ``scene`` is a scene name or path, ``overrides`` ``--set`` style assignments; ``integrator``
+    and ``dt`` [s] override the scene's. Taichi must be initialised first.
+    """
+
+    def __init__(self, scene: str = "plane", overrides=(), integrator: str | None = None, dt: float | None = None):
+        self.scene_name = scene
+        self.overrides = list(overrides)
+        base = self._load(self.overrides)
+        body = base.data["body"][0]
+        gravity = np.asarray(base.sim["gravity"], dtype=np.float64)
+        g = float(np.linalg.norm(gravity))
+        # Gravity is scaled along the scene's direction; a weightless scene gets "down" (-y).
+        self._g_dir = gravity / g if g > 0 else np.array([0.0, -1.0, 0.0])
+        self.settings = Settings(
+            integrator=integrator or base.sim["integrator"], terrain=base.data["terrain"]["kind"],
+            dt=float(dt if dt is not None else base.sim["dt"]),
+            stiffness={kind: float(body[kind]["k"]) for kind in SPRING_KINDS},
+            damping=float(body["stretch"]["damping"]), restitution=float(base.data["contact"]["restitution"]),
+            friction=float(base.data["contact"]["friction"]), particle_mass=float(body["particle_mass"]),
+            height=float(body["center"][1]), rotation=float(body["rotation"]["degrees"]), gravity=g)
+        if self.settings.integrator not in REGISTRY:
+            raise UserError(f"unknown integrator {self.settings.integrator!r}; choose one of: {', '.join(REGISTRY)}")
+        self.message: str | None = None  # why the simulation stopped (divergence or error)
+        self.history = EnergyHistory()
+        self.last_measures: dict | None = None
+        self.generation = 0  # bumped whenever ``sim`` is replaced (views must be rebuilt)
+        self._build(base)
+
+    # -- construction -----------------------------------------------------------------------
+    def _load(self, overrides):
+        from ..integrators import names
+
+        return load_scene(self.scene_name, overrides, integrator_names=names())
+
+    def _build(self, scene):
+        """A new ``Simulation`` for ``scene`` with every current setting applied, at its start."""
+        s = self.settings
+        sim = Simulation(scene, integrator=s.integrator, dt=s.dt, options=self._options(s.integrator, scene))
+        self.sim = sim
+        self._integrators = {s.integrator: sim.integrator}
+        self._scene_x0 = sim.model.x0_np.copy()  # the scene's own pose, before height / rotation
+        self._mass_applied = None
+        self.generation += 1
+        self._apply_live_settings()
+        self.reset()
+
+    @staticmethod
+    def _options(name: str, scene) -> dict:
+        """The scene's ``[solver]`` options that integrator ``name`` understands."""
+        return {k: v for k, v in scene.data.get("solver", {}).items() if k in REGISTRY[name].OPTIONS}
+
+    def _apply_live_settings(self):
+        s = self.settings
+        for kind, k in s.stiffness.items():
+            self.set_stiffness(kind, k)
+        self.set_damping(s.damping)
+        self.set_contact(s.restitution, s.friction)
+        self.set_particle_mass(s.particle_mass)
+        self.set_gravity(s.gravity)
+
+    # -- choices ----------------------------------------------------------------------------
+    @staticmethod
+    def integrator_names() -> list[str]:
+        return list(REGISTRY)
+
+    @staticmethod
+    def terrain_kinds() -> list[str]:
+        return list(TERRAIN_KINDS)
+
+    def set_integrator(self, name: str):
+        """Continue from the current state with integrator ``name`` (from the start if diverged)."""
+        if name == self.sim.integrator_name:
+            return
+        integ = self._integrators.get(name)
+        if integ is None:
+            integ = make_integrator(name, self.sim.model, self.sim.terrain, self._options(name, self.sim.scene))
+            self._integrators[name] = integ
+        integ.reset()
+        # Simulation has no setter: its integrator is a plain attribute that ``advance`` reads.
+        self.sim.integrator, self.sim.integrator_name = integ, name
+        self.settings.integrator = name
+        if self.sim.diverged or self.message:
+            self.reset()
+
+    def set_terrain(self, kind: str):
+        """Rebuild the simulation on terrain ``kind`` (its default geometry), same settings, reset."""
+        if kind == self.sim.terrain.kind:
+            return
+        scene = self._load(self.overrides + [f"terrain.kind={kind}"])
+        self.settings.terrain = kind
+        self._build(scene)
+
+    # -- live parameters --------------------------------------------------------------------
+    def set_dt(self, dt: float):
+        """Time step [s] from the next step on."""
+        self.settings.dt = float(dt)
+        self.sim.set_dt(dt)
+
+    def set_stiffness(self, kind: str, k: float):
+        """Stiffness [N/m] of spring ``kind`` in every body."""
+        self.settings.stiffness[kind] = float(k)
+        for b in range(len(self.sim.model.bodies)):
+            self.sim.model.set_spring_params(b, kind, k=float(k))
+
+    def set_damping(self, damping: float):
+        """Damper coefficient [N s/m] of every spring kind in every body."""
+        self.settings.damping = float(damping)
+        for b in range(len(self.sim.model.bodies)):
+            for kind in SPRING_KINDS:
+                self.sim.model.set_spring_params(b, kind, damping=float(damping))
+
+    def set_contact(self, restitution: float | None = None, friction: float | None = None):
+        """Restitution [0, 1] and Coulomb friction coefficient of the terrain contact."""
+        if restitution is not None:
+            self.settings.restitution = float(restitution)
+        if friction is not None:
+            self.settings.friction = float(friction)
+        self.sim.terrain.set_contact(restitution=restitution, friction=friction)
+
+    def set_particle_mass(self, mass: float):
+        """Mass [kg] of every particle (pinned particles, inverse mass 0, stay pinned)."""
+        self.settings.particle_mass = float(mass)
+        if self._mass_applied == mass:
+            return
+        model = self.sim.model
+        free = model.mass_np > 0
+        model.mass_np = np.where(free, float(mass), 0.0)  # Diagnostics' centre of mass reads it
+        model.mass.from_numpy(model.mass_np.astype(model.real))
+        model.inv_mass.from_numpy(np.where(free, 1.0 / float(mass), 0.0).astype(model.real))
+        self._mass_applied = mass
+        for integ in self._integrators.values():
+            # fast_mass_spring keeps M + L factorised and refactorises only when dt or a spring
+            # parameter changes; forget its key so the new masses enter the matrix.
+            if hasattr(integ, "_matrix_key"):
+                integ._matrix_key = None
+
+    def set_gravity(self, magnitude: float):
+        """Gravity [m/s^2] along the scene's direction (straight down for a weightless scene)."""
+        self.settings.gravity = float(magnitude)
+        self.sim.model.set_gravity(self._g_dir * float(magnitude))
+
+    def set_pose(self, height: float | None = None, rotation: float | None = None):
+        """Drop height [m] and rotation [degrees] of the first body; take effect at ``reset()``."""
+        if height is not None:
+            self.settings.height = float(height)
+        if rotation is not None:
+            self.settings.rotation = float(rotation)
+
+    def set_slow_motion(self, factor: float):
+        """Simulated seconds per wall-clock second wanted, in (0, 1]."""
+        self.settings.slow_motion = min(max(float(factor), 1e-3), 1.0)
+
+    # -- running ----------------------------------------------------------------------------
+    def toggle_pause(self):
+        self.settings.paused = not self.settings.paused
+
+    def reset(self):
+        """Back to the initial state with the current height and rotation; clears a divergence
+        (and the pause it caused)."""
+        if self.message:
+            self.settings.paused = False
+        model = self.sim.model
+        model.x0_np, model.v0_np = self._initial_pose()
+        self.sim.reset()
+        self.message = None
+        self.history.clear()
+        self.last_measures = None
+        self.sample()
+
+    def _initial_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Initial positions [m] and velocities [m/s]: the scene's pose moved up by the height
+        change and turned about each body's rotation axis by the rotation change."""
+        s = self.settings
+        scene_bodies = self.sim.scene.data["body"]
+        dy = s.height - scene_bodies[0]["center"][1]
+        dturn = s.rotation - scene_bodies[0]["rotation"]["degrees"]
+        x0 = self._scene_x0.copy()
+        v0 = np.empty_like(x0)
+        for info, body in zip(self.sim.model.bodies, scene_bodies):
+            c = np.asarray(body["center"], dtype=np.float64)
+            turn = rotation_matrix(body["rotation"]["axis"], dturn)
+            local = (x0[info.particles] - c) @ turn.T
+            x0[info.particles] = local + c + [0.0, dy, 0.0]
+            v0[info.particles] = np.asarray(body["velocity"]) + np.cross(body["angular_velocity"], local)
+        return x0, v0
+
+    def step(self, n: int = 1) -> int:
+        """Take up to ``n`` steps now (even while paused); returns the steps taken.
+
+        Divergence or an engine error pauses the simulation and sets ``message``.
+        """
+        if self.message or n <= 0:
+            return 0
+        try:
+            done = self.sim.advance(int(n))
+        except Exception as e:  # noqa: BLE001 - the window must survive any engine error
+            self._stop(f"stopped: {type(e).__name__}: {e}".splitlines()[0])
+            return 0
+        if self.sim.diverged:
+            s = self.sim
+            self._stop(f"diverged at t = {s.diverged_at:.4f} s with {s.integrator_name} at dt = {s.dt:g} s; "
+                       f"try dt <= {s.suggest_dt():g} (R resets)")
+        return done
+
+    def _stop(self, message: str):
+        self.message = message
+        self.settings.paused = True
+
+    def sample(self) -> dict | None:
+        """Measure the current state and append its energies to ``history``.
+
+        After a divergence the state holds NaN: the last good measures are kept instead.
+        """
+        if self.message:
+            return self.last_measures
+        m = self.sim.measure()
+        if not all(math.isfinite(m[k]) for k in ENERGY_KEYS):
+            return self.last_measures
+        self.last_measures = m
+        self.history.add(self.sim.time, m)
+        return m
+
+    def solver_stats(self) -> dict:
+        """The current integrator's iteration counts since the last call (implicit methods)."""
+        return self.sim.integrator.stats() if self.sim.integrator.implicit else {}

@@ -1,0 +1,242 @@
+"""The classroom demo: what each control does to the simulation (no window), the HUD wording and
+pacing, and one real window under a virtual X display (skipped without Xvfb or Vulkan)."""
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_soft.demo import hud
+from taichi_soft.demo.controller import DemoController
+from taichi_soft.demo.pacing import Pacer
+from taichi_soft.integrators import names
+
+from conftest import ROOT
+
+SMALL = ["body.0.n=3", "body.0.size=1.0", "body.0.center=[0, 1.0, 0]"]  # 27 particles: fast
+
+
+@pytest.fixture(scope="module")
+def ctl():
+    return DemoController("plane", SMALL, integrator="semi_implicit_euler", dt=1e-3)
+
+
+@pytest.fixture
+def fresh(ctl):
+    """The shared controller back at the scene's settings and initial state."""
+    ctl.set_integrator("semi_implicit_euler")
+    ctl.set_terrain("plane")
+    ctl.set_dt(1e-3)
+    for kind in ("stretch", "shear", "bend"):
+        ctl.set_stiffness(kind, 2000.0)
+    ctl.set_damping(60.0)
+    ctl.set_contact(restitution=0.8, friction=0.3)
+    ctl.set_particle_mass(1.0)
+    ctl.set_gravity(9.8)
+    ctl.set_pose(height=1.0, rotation=30.0)
+    ctl.settings.paused = False
+    ctl.reset()
+    return ctl
+
+
+class CompileCounter:
+    """Counts Taichi kernel compilations (a materialize() for a key not compiled yet)."""
+
+    def __init__(self, monkeypatch):
+        self.count = 0
+        original = ti.lang.kernel_impl.Kernel.materialize
+
+        def counting(kernel, key=None, *args, **kwargs):
+            if key is None or key not in kernel.compiled_kernels:
+                self.count += 1
+            return original(kernel, key, *args, **kwargs)
+
+        monkeypatch.setattr(ti.lang.kernel_impl.Kernel, "materialize", counting)
+
+
+def positions(ctl):
+    return ctl.sim.state.x.to_numpy()
+
+
+def test_every_registered_integrator_switches_live_from_the_current_state(fresh):
+    fresh.step(50)
+    for name in names():
+        before, t = positions(fresh), fresh.sim.time
+        fresh.set_integrator(name)
+        assert fresh.sim.integrator_name == name == fresh.settings.integrator
+        np.testing.assert_array_equal(positions(fresh), before)  # switching keeps the state
+        assert fresh.step(5) == 5, fresh.message
+        assert fresh.sim.time == pytest.approx(t + 5e-3)
+        assert not np.array_equal(positions(fresh), before)
+
+
+def test_terrain_switch_rebuilds_resets_and_keeps_the_other_settings(fresh):
+    fresh.set_integrator("midpoint")
+    fresh.set_dt(5e-4)
+    fresh.set_stiffness("shear", 3000.0)
+    fresh.set_contact(friction=0.6)
+    fresh.set_gravity(5.0)
+    fresh.step(20)
+    old_sim = fresh.sim
+    fresh.set_terrain("sphere")
+    sim = fresh.sim
+    assert sim is not old_sim and sim.terrain.kind == "sphere" and fresh.settings.terrain == "sphere"
+    assert sim.time == 0.0 and sim.integrator_name == "midpoint" and sim.dt == 5e-4
+    assert sim.model.group_k.to_numpy()[1] == 3000.0
+    assert sim.terrain.friction[None] == pytest.approx(0.6)
+    np.testing.assert_allclose(sim.model.gravity.to_numpy(), [0.0, -5.0, 0.0])
+    assert fresh.step(10) == 10
+
+
+@pytest.mark.parametrize("control", ["stiffness", "damping", "dt", "gravity", "mass", "restitution", "friction"])
+def test_live_controls_change_the_next_step_without_a_recompile(fresh, monkeypatch, control):
+    fresh.set_pose(height=-0.2)  # lowest corner 0.1 m above the plane (y = -1): lands within 0.3 s
+    fresh.reset()
+    fresh.step(300)
+    reference = positions(fresh)
+    fresh.reset()
+    counter = CompileCounter(monkeypatch)
+    start = time.perf_counter()
+    {"stiffness": lambda: fresh.set_stiffness("stretch", 8000.0), "damping": lambda: fresh.set_damping(5.0),
+     "dt": lambda: fresh.set_dt(1.1e-3), "gravity": lambda: fresh.set_gravity(20.0),
+     "mass": lambda: fresh.set_particle_mass(3.0), "restitution": lambda: fresh.set_contact(restitution=0.0),
+     "friction": lambda: fresh.set_contact(friction=1.2)}[control]()
+    fresh.step(300)
+    assert counter.count == 0
+    assert time.perf_counter() - start < 2.0  # a recompile alone takes about a second
+    assert np.abs(positions(fresh) - reference).max() > 1e-9
+
+
+def test_reset_restores_the_initial_state_with_the_new_pose(fresh):
+    x0 = positions(fresh).copy()
+    fresh.step(200)
+    fresh.reset()
+    np.testing.assert_array_equal(positions(fresh), x0)
+    assert fresh.sim.time == 0.0 and fresh.message is None
+    fresh.set_pose(height=3.0, rotation=30.0)  # height only: +2 m
+    fresh.step(10)
+    fresh.reset()
+    np.testing.assert_allclose(positions(fresh), x0 + [0.0, 2.0, 0.0])
+    fresh.set_pose(height=1.0, rotation=0.0)
+    fresh.reset()
+    x = positions(fresh)
+    center = x.mean(axis=0)
+    assert np.allclose(np.sort(np.abs(x - center)[:, 1])[-1], 0.5)  # level again: edges 0.5 m from centre
+
+
+def test_divergence_pauses_with_a_message_and_reset_recovers(fresh):
+    fresh.set_integrator("explicit_euler")
+    fresh.set_stiffness("stretch", 1e6)
+    fresh.set_dt(0.01)
+    fresh.step(500)
+    msg = fresh.message
+    assert msg and msg.startswith("diverged at t = ") and "explicit_euler" in msg and "dt = 0.01 s" in msg
+    assert "try dt <= 0.005" in msg
+    assert fresh.settings.paused and fresh.step(10) == 0
+    assert fresh.last_measures is not None and np.isfinite(fresh.last_measures["total_energy"])
+    fresh.set_dt(1e-4)
+    fresh.reset()
+    assert fresh.message is None and fresh.step(10) == 10
+
+
+def test_controls_reject_unknown_names(fresh):
+    from taichi_soft.errors import UserError
+
+    with pytest.raises(UserError):
+        fresh.set_integrator("leapfrog")
+    with pytest.raises(UserError):
+        fresh.set_terrain("volcano")
+    assert fresh.sim.integrator_name == "semi_implicit_euler" and fresh.sim.terrain.kind == "plane"
+
+
+def test_hud_lines_say_time_pace_energy_and_solver_iterations(fresh):
+    fresh.step(10)
+    fresh.sample()
+    pacer = Pacer()
+    lines = hud.status_lines(fresh, pacer, {"steps": 10, "newton_iterations_per_step": 2.0,
+                                            "cg_iterations_per_step": 14.5})
+    assert lines[0].startswith("t =") and "semi_implicit_euler" in lines[0] and "dt = 0.001 s" in lines[0]
+    assert lines[2].startswith("E = ") and "kin" in lines[2] and "spring" in lines[2] and "grav" in lines[2]
+    assert lines[3] == "iterations per step: Newton 2.0, CG 14.5"
+    assert hud.pace_text(True, 1.0, 0.0, 0.0, False) == "PAUSED"
+    assert "2.5x slower" in hud.pace_text(False, 1.0, 0.4, 400.0, True)
+    plot = hud.energy_plot(fresh.history, (0, 0, 100, 50))
+    assert [k for k, _ in plot] == list(hud.ENERGY_KEYS)
+    assert all(p[:, 1].min() >= 0 and p[:, 1].max() <= 50 for _, p in plot)
+
+
+def test_pacer_takes_real_time_steps_and_reports_falling_behind():
+    now = [0.0]
+    pacer = Pacer(budget=0.05, clock=lambda: now[0])
+    assert pacer.plan(1e-3) == 0  # first frame: no time has passed
+    steps = []
+    for _ in range(60):  # one second at 60 frames/s, each step costing 10 us
+        now[0] += 1 / 60
+        n = pacer.plan(1e-3)
+        steps.append(n)
+        pacer.record(n, n * 1e-5, 1e-3)
+    assert sum(steps) in (999, 1000, 1001) and set(steps) <= {16, 17}
+    assert pacer.realtime_factor == pytest.approx(1.0, abs=0.03) and not pacer.limited
+    for _ in range(60):  # now each step costs 1 ms: only 50 fit in a frame's budget
+        now[0] += 1 / 60
+        n = pacer.plan(1e-4)
+        pacer.record(n, n * 1e-3, 1e-4)
+    assert pacer.limited and pacer.realtime_factor < 0.4
+
+
+# -- the real window ---------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def xvfb():
+    """A virtual X display on a free number (Xvfb picks it: -displayfd); yields DISPLAY."""
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (apt-get install xvfb)")
+    read, write = os.pipe()
+    proc = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
+                            pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write)
+    with os.fdopen(read) as f:
+        number = f.readline().strip()
+    if not number:
+        proc.kill()
+        pytest.skip("Xvfb did not start")
+    yield f":{number}"
+    proc.terminate()
+    proc.wait(timeout=10)
+
+
+def test_demo_window_draws_the_scene_and_hud(xvfb, tmp_path):
+    shot = tmp_path / "shot.png"
+    env = dict(os.environ, DISPLAY=xvfb, PYTHONUNBUFFERED="1")
+    # cwd = tmp_path: ImGui writes its imgui.ini into the working directory.
+    proc = subprocess.run([sys.executable, str(ROOT / "main.py"), "demo", "--scene", "plane", "--integrator", "rk4",
+                           "--set", "body.0.n=5", "--resolution", "640x400", "--frames", "8", "--screenshot", str(shot)],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    if proc.returncode == 2 and "Vulkan" in proc.stderr:
+        pytest.skip(f"no Vulkan device: {proc.stderr.strip()}")
+    assert proc.returncode == 0, proc.stderr
+    from PIL import Image
+
+    img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    assert img.shape == (400, 640, 3)
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    scene = np.s_[:, : int(0.7 * 640)]
+    orange = (r > g + 50) & (g > b + 30)  # the cube (BODY_COLORS[0], shaded)
+    assert orange[scene].sum() > 300
+    assert ((abs(r - 219) < 12) & (abs(b - 237) < 12))[scene].sum() > 1000  # sky (BACKGROUND)
+    panel = img[40:380, int(0.72 * 640):]  # ImGui controls: dark, with blue sliders
+    assert panel.mean() < 90 and ((b > r + 60) & (b > 100))[40:380, int(0.72 * 640):].sum() > 200
+    hud_text = img[5:60, 5:300]  # large white HUD text with a dark outline
+    assert (hud_text.min(axis=2) > 235).sum() > 300 and (hud_text.max(axis=2) < 40).sum() > 300
+
+
+def test_demo_without_a_display_says_so_in_one_line(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.run([sys.executable, str(ROOT / "main.py"), "demo"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "display" in lines[0] and "run --video" in lines[0], proc.stderr

@@ -1,0 +1,365 @@
+"""Offscreen rendering, video, compare mosaics and mesh export (docs/rendering.md).
+
+GGUI tests need a Vulkan device (Mesa's lavapipe is enough); it is probed once, in a subprocess
+so that a driver crash cannot take pytest down, and those tests skip with the reason if it fails.
+Frames are tiny and bodies small (n = 4) to keep the file fast on two CPU cores.
+"""
+import functools
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, run_cli
+from taichi_soft.render import overlay
+from taichi_soft.render.camera import CameraSpec, project, projection_matrix, scene_camera, view_matrix
+
+SMALL = ["--set", "body.0.n=4", "--resolution", "96x64", "--fps", "20"]
+NO_VULKAN = {"VK_ICD_FILENAMES": "/nonexistent"}  # the Vulkan loader then finds no driver at all
+
+
+@functools.lru_cache(maxsize=1)
+def vulkan_probe() -> str | None:
+    """None if a hidden GGUI window opens here, else why not (one line)."""
+    code = "import taichi as ti; ti.init(arch=ti.cpu); ti.ui.Window('probe', (16, 16), show_window=False)"
+    try:
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT / "tests")
+    except subprocess.TimeoutExpired:
+        return "opening a GGUI window timed out"
+    if p.returncode == 0:
+        return None
+    lines = [line for line in (p.stderr + p.stdout).splitlines() if line.strip()]
+    return lines[-1] if lines else f"exit status {p.returncode}"
+
+
+@pytest.fixture(scope="session")
+def vulkan():
+    reason = vulkan_probe()
+    if reason:
+        pytest.skip(f"no usable Vulkan device for GGUI offscreen rendering: {reason}")
+
+
+@pytest.fixture(scope="module")
+def renderer(vulkan, tmp_path_factory):
+    """One 160 x 96 hidden window for every in-process test (a process gets one Taichi runtime).
+
+    Dear ImGui inside GGUI saves ``imgui.ini`` in the working directory: keep it out of the repo.
+    """
+    from taichi_soft.render.renderer import Renderer
+
+    old = os.getcwd()
+    os.chdir(tmp_path_factory.mktemp("ggui"))
+    r = Renderer(160, 96)
+    yield r
+    r.close()
+    os.chdir(old)
+
+
+def cli(*args, env=None, cwd=None):
+    """``python main.py ARGS`` run in ``cwd`` (default: the repo root)."""
+    if env is None:
+        return run_cli(*args, cwd=cwd or ROOT)
+    full = dict(os.environ, **env)
+    return subprocess.run([sys.executable, str(ROOT / "main.py"), *map(str, args)], cwd=cwd or ROOT, env=full,
+                          capture_output=True, text=True, timeout=600)
+
+
+def small_scene(name):
+    """A shipped scene with every body cut down to 4 x 4 x 4 particles."""
+    from taichi_soft.integrators import names
+    from taichi_soft.scene import load_scene
+
+    n_bodies = len(load_scene(name).data["body"])
+    return load_scene(name, [f"body.{b}.n=4" for b in range(n_bodies)], integrator_names=names())
+
+
+def banner_red(img):
+    """Pixels of the red "diverged" banner (not of an orange cube, whose green is at least 45 % of its red)."""
+    img = np.asarray(img, dtype=np.int32)
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (r > 150) & (g < 70) & (b < 70) & (r - g > 120)
+
+
+def saturation(pixels):
+    pixels = np.asarray(pixels, dtype=np.int32)
+    return pixels.max(axis=-1) - pixels.min(axis=-1)
+
+
+# -- cameras (no Vulkan needed) -------------------------------------------------------------------
+def test_camera_matrices_match_ggui():
+    import taichi as ti
+
+    spec = CameraSpec((3.0, 4.0, 10.0), (0.0, 1.0, -0.5), (0.0, 1.0, 0.0), 40.0)
+    cam = ti.ui.Camera()
+    cam.position(*spec.position)
+    cam.lookat(*spec.lookat)
+    cam.up(*spec.up)
+    cam.fov(spec.fov)
+    # GGUI hands its matrices back transposed (column-major rows).
+    np.testing.assert_allclose(np.array(cam.get_view_matrix()).T, view_matrix(spec), atol=1e-5)
+    ggui_proj = np.array(cam.get_projection_matrix(16 / 9)).T
+    ours = projection_matrix(spec, 16 / 9)
+    # x, y scale and the perspective divide (w = -z) are what pixel positions depend on.
+    np.testing.assert_allclose([ggui_proj[0, 0], ggui_proj[1, 1], ggui_proj[3, 2]], [ours[0, 0], ours[1, 1], ours[3, 2]],
+                               rtol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["plane", "tilted_plane", "sphere", "bowl", "three_cubes", "free_float"])
+def test_default_camera_keeps_start_and_terrain_in_frame(name):
+    from taichi_soft.scene import load_scene
+
+    data = load_scene(name).data
+    w, h = 1280, 720
+    cam = scene_camera(data, w / h, top_margin=overlay.INFO_MARGIN)
+    points = [b["center"] for b in data["body"]]
+    if data["terrain"]["kind"] in ("sphere", "bowl"):
+        points.append(data["terrain"]["center"])
+    px = project(points, cam, w, h)
+    assert np.all((px[:, 0] > 0) & (px[:, 0] < w) & (px[:, 1] > overlay.INFO_MARGIN * h) & (px[:, 1] < h)), px
+    assert cam.follow == (data["terrain"]["kind"] == "tilted_plane")
+
+
+def test_scene_camera_keys_override_default():
+    from taichi_soft.scene import load_scene
+
+    data = load_scene("plane", ["render.camera.position=[1, 2, 30]", "render.camera.fov=55"]).data
+    cam = scene_camera(data, 16 / 9)
+    assert cam.position == (1.0, 2.0, 30.0) and cam.fov == 55.0 and not cam.follow
+    assert scene_camera(data, 16 / 9, follow=True).following([5, 0, 0]).lookat[0] == pytest.approx(cam.lookat[0] + 5)
+
+
+# -- frames ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["plane", "tilted_plane", "sphere", "bowl", "three_cubes", "free_float"])
+def test_frame_shows_bodies_and_terrain(renderer, name):
+    from taichi_soft.render.meshes import BODY_COLORS
+    from taichi_soft.render.renderer import BACKGROUND, SimulationView
+    from taichi_soft.simulation import Simulation
+
+    scene = small_scene(name)
+    sim = Simulation(scene)
+    view = SimulationView(sim)
+    cam = scene_camera(scene.data, renderer.aspect)
+    img = renderer.render(view, cam)
+    assert img.shape == (96, 160, 3) and img.dtype == np.uint8
+    background = np.round(np.array(BACKGROUND) * 255).astype(int)
+    is_background = np.abs(img.astype(int) - background).max(axis=-1) <= 2
+    assert is_background.mean() < 0.95, "the frame is (almost) all background"
+
+    # Each body's centre projects onto a pixel of that body's colour: saturated, same dominant channel.
+    for b, body in enumerate(scene.data["body"]):
+        col, row = project([body["center"]], cam, 160, 96)[0]
+        pixel = img[int(row), int(col)]
+        color = BODY_COLORS[b % len(BODY_COLORS)]
+        assert saturation(pixel) > 60, (b, pixel)
+        assert int(np.argmax(pixel)) == int(np.argmax(color)), (b, pixel, color)
+
+    # The terrain is drawn where the collision shape is: grey-blue, unsaturated, not background.
+    t = scene.data["terrain"]
+    terrain_like = (~is_background) & (saturation(img) < 70)
+    if t["kind"] == "none":
+        assert terrain_like.mean() < 0.02
+        return
+    assert terrain_like.mean() > 0.05
+    if t["kind"] == "sphere":
+        probe = np.add(t["center"], [0, t["radius"], 0])  # the top, where the cube lands
+    elif t["kind"] == "bowl":
+        probe = np.add(t["center"], [0, -t["radius"], 0])  # the bottom of the inside
+    else:  # plane kinds: the first body's centre dropped onto the plane along the normal
+        n = np.asarray(t["normal"]) / np.linalg.norm(t["normal"])
+        c = np.asarray(scene.data["body"][0]["center"])
+        probe = c - np.dot(c - t["point"], n) * n
+    col, row = project([probe], cam, 160, 96)[0]
+    assert terrain_like[int(row), int(col)], img[int(row), int(col)]
+
+
+def test_springs_and_particles_toggle(renderer):
+    from taichi_soft.render.renderer import SimulationView
+    from taichi_soft.simulation import Simulation
+
+    sim = Simulation(small_scene("free_float"))
+    cam = scene_camera(sim.scene.data, renderer.aspect)
+    surface = renderer.render(SimulationView(sim), cam)
+    springs = renderer.render(SimulationView(sim, surface=False, springs=True), cam)
+    particles = renderer.render(SimulationView(sim, surface=False, particles=True), cam)
+    orange = (surface[..., 0].astype(int) - surface[..., 2] > 100).sum()
+    assert orange > 200
+    # Springs: blue (stretch), green (shear) and magenta (bend) lines, no orange surface.
+    assert (springs[..., 0].astype(int) - springs[..., 2] > 100).sum() < orange / 10
+    assert (springs[..., 1].astype(int) - springs[..., 0] > 60).sum() > 20  # green shear lines
+    assert (particles.astype(int).max(axis=-1) < 80).sum() > 20  # dark particle spheres
+
+
+def test_overlay_shows_time_and_changes_with_it():
+    info = overlay.RunInfo("plane", "rk4", 0.001, "2000 N/m", "60 N s/m")
+    first, later = info.lines(0.0, 88200.0), info.lines(1.25, 61000.5)
+    assert "t =   0.000 s" in first[2] and "E = 88200.0 J" in first[2] and "rk4" in first[0]
+    a = np.full((72, 128, 3), 200, np.uint8)
+    b = a.copy()
+    overlay.draw_info(a, first)
+    overlay.draw_info(b, later)
+    assert (a != 200).any(), "overlay drew nothing"
+    assert (a != b).any(), "a later time draws the same overlay"
+    assert overlay.value_range([600, 2000, 8000], "N/m") == "600..8000 N/m"
+
+
+# -- command line ---------------------------------------------------------------------------------
+def test_run_writes_video_and_frames(vulkan, tmp_path):
+    import imageio.v3 as iio
+
+    video, frames = tmp_path / "out.mp4", tmp_path / "frames"
+    p = cli("run", "--duration", "0.3", *SMALL, "--video", video, "--frames", frames, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert f"video: {video}" in p.stdout
+    decoded = iio.imread(video)
+    assert decoded.shape == (7, 64, 96, 3)  # t = 0, 0.05, ..., 0.3 s
+    pngs = sorted(frames.glob("frame_*.png"))
+    assert [f.name for f in pngs] == [f"frame_{k:05d}.png" for k in range(7)]
+    first, last = iio.imread(pngs[0]), iio.imread(pngs[-1])
+    assert first.shape == (64, 96, 3)
+    top_left = (slice(0, 14), slice(0, 90))  # the overlay's panel, with "t = ..." in it
+    assert (first[top_left] != last[top_left]).any()
+    assert not list(tmp_path.glob(".*")), "temporary files left behind"
+
+
+def test_gif(vulkan, tmp_path):
+    import imageio.v3 as iio
+
+    gif = tmp_path / "out.gif"
+    p = cli("run", "--duration", "0.1", *SMALL, "--video", gif, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert iio.imread(gif).shape[0] == 3
+
+
+def test_diverged_run_closes_video_with_banner(vulkan, tmp_path):
+    import imageio.v3 as iio
+
+    video = tmp_path / "div.mp4"
+    p = cli("run", "--integrator", "explicit_euler", "--dt", "0.01", "--duration", "1", *SMALL, "--video", video,
+            cwd=tmp_path)
+    assert p.returncode == 3, p.stderr
+    assert "diverged at t =" in p.stderr
+    frames = iio.imread(video)
+    assert len(frames) >= 20 + 1  # the last good frame held for ~1 s at 20 fps
+    assert banner_red(frames[-1]).mean() > 0.05, "no DIVERGED banner on the last frame"
+    assert banner_red(frames[0]).mean() < 0.005
+
+
+def test_compare_mosaic_marks_diverged_tile(vulkan, tmp_path):
+    import imageio.v3 as iio
+
+    video = tmp_path / "cmp.mp4"
+    p = cli("compare", "--integrators", "explicit_euler,rk4", "--dt", "0.003", "--duration", "0.5",
+            "--set", "body.0.n=4", "--fps", "10", "--resolution", "320x180", "--video", video, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "explicit_euler" in p.stdout and "diverged at t =" in p.stdout.splitlines()[0]
+    assert "rk4" in p.stdout.splitlines()[1] and "ran to" in p.stdout.splitlines()[1]
+    frames = iio.imread(video)
+    assert frames.shape == (6, 180, 320, 3)  # two 160 x 180 tiles side by side
+    red = banner_red(frames[-1])
+    assert red[:, :160].mean() > 0.03, "the diverged tile is not marked"
+    assert red[:, 160:].mean() < 0.005, "the healthy tile is marked"
+
+
+def test_no_vulkan_is_one_line_and_overwrites_nothing(tmp_path):
+    video = tmp_path / "keep.mp4"
+    video.write_bytes(b"old video")
+    p = cli("run", "--duration", "0.1", *SMALL, "--video", video, env=NO_VULKAN, cwd=tmp_path)
+    assert p.returncode == 2
+    assert len(p.stderr.strip().splitlines()) == 1 and "Vulkan" in p.stderr, p.stderr
+    assert video.read_bytes() == b"old video"
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["keep.mp4"]
+
+
+def test_mesh_export_needs_no_vulkan(tmp_path):
+    meshes = tmp_path / "meshes"
+    p = cli("run", "--duration", "0.1", "--set", "body.0.n=4", "--fps", "20", "--export-mesh", meshes,
+            env=NO_VULKAN, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    files = sorted(meshes.glob("mesh_*.ply"))
+    assert len(files) == 3
+    data = files[-1].read_bytes()
+    header, body = data.split(b"end_header\n", 1)
+    assert b"element vertex 56" in header and b"element face 108" in header  # 4^3 - 2^3 surface particles
+    vert = np.frombuffer(body[:56 * 25], dtype=[("p", "<f4", 3), ("n", "<f4", 3), ("body", "u1")])
+    faces = np.frombuffer(body[56 * 25:], dtype=[("count", "u1"), ("idx", "<i4", 3)])
+    assert np.all(faces["count"] == 3) and faces["idx"].max() == 55
+    np.testing.assert_allclose(np.linalg.norm(vert["n"], axis=1), 1.0, atol=1e-5)
+    # Outward winding: face normals point away from the body's centre.
+    p0, p1, p2 = (vert["p"][faces["idx"][:, k]] for k in range(3))
+    outward = np.einsum("ij,ij->i", np.cross(p1 - p0, p2 - p0), (p0 + p1 + p2) / 3 - vert["p"].mean(axis=0))
+    assert np.all(outward > 0)
+
+
+def test_obj_writer(tmp_path):
+    from taichi_soft.render.export import write_obj
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 0, 0], [6, 0, 0], [5, 1, 0]], np.float32)
+    n = np.tile(np.float32([0, 0, 1]), (6, 1))
+    tris = np.array([[0, 1, 2], [3, 4, 5]])
+    write_obj(tmp_path / "m.obj", v, n, tris, np.array([0, 0, 0, 1, 1, 1], np.uint8))
+    text = (tmp_path / "m.obj").read_text().splitlines()
+    assert [line for line in text if line.startswith(("o ", "f "))] == ["o body_0", "f 1//1 2//2 3//3",
+                                                                        "o body_1", "f 4//4 5//5 6//6"]
+
+
+@pytest.mark.parametrize("args, word", [
+    (["--video", "x.avi"], ".mp4 or .gif"),
+    (["--video", "x.mp4", "--resolution", "97x64"], "even"),
+    (["--resolution", "12x9000"], "WIDTHxHEIGHT"),
+    (["--frames", "main.py"], "not a directory"),
+])
+def test_bad_render_flags_exit_2(args, word, tmp_path):
+    (tmp_path / "main.py").write_text("")
+    p = cli("run", "--duration", "0.1", *args, cwd=tmp_path)
+    assert p.returncode == 2
+    assert len(p.stderr.strip().splitlines()) == 1 and word in p.stderr, p.stderr
+
+
+# -- building blocks ------------------------------------------------------------------------------
+def test_grid_shape():
+    from taichi_soft.render.compare import grid_shape
+
+    assert grid_shape(1, 1280, 720) == (1, 1)
+    assert grid_shape(2, 1280, 720) == (2, 1)
+    assert grid_shape(3, 1280, 720) == (2, 2)
+    assert grid_shape(4, 1280, 720) == (2, 2)
+    assert grid_shape(6, 1280, 720) == (3, 2)
+
+
+def test_staged_dir_replaces_only_its_own_files(tmp_path):
+    from taichi_soft.render.outputs import StagedDir
+
+    target = tmp_path / "frames"
+    target.mkdir()
+    for name in ("frame_00000.png", "frame_00001.png", "frame_00002.png", "notes.txt"):
+        (target / name).write_text("old")
+    staged = StagedDir(target, "frame", ".png")
+    staged.file(0).write_text("new")
+    assert (target / "frame_00000.png").read_text() == "old"  # nothing changes before commit
+    staged.commit()
+    assert sorted(f.name for f in target.iterdir()) == ["frame_00000.png", "notes.txt"]
+    assert (target / "frame_00000.png").read_text() == "new"
+    aborted = StagedDir(target, "frame", ".png")
+    aborted.file(0).write_text("newer")
+    aborted.abort()
+    assert (target / "frame_00000.png").read_text() == "new" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_background_writer_reports_worker_failure():
+    from taichi_soft.render.outputs import BackgroundWriter
+
+    done = []
+
+    def handle(item):
+        if item == 3:
+            raise OSError("disk full")
+        done.append(item)
+
+    writer = BackgroundWriter(handle, maxsize=2)
+    with pytest.raises(OSError, match="disk full"):
+        for k in range(100):
+            writer.submit(k)
+        writer.close()
+    assert done == [0, 1, 2]
