@@ -154,6 +154,7 @@ class Model:
         self.group_k.from_numpy(np.asarray(group_k, dtype=self.real))
         self.group_kd.from_numpy(np.asarray(group_kd, dtype=self.real))
         self.gravity[None] = gravity
+        self.mass_version = 0  # bumped by set_particle_mass
 
     def _upload_adjacency(self):
         a, b = self.pairs_np[:, 0], self.pairs_np[:, 1]
@@ -181,6 +182,20 @@ class Model:
             self.group_k[g] = k
         if damping is not None:
             self.group_kd[g] = damping
+
+    def set_particle_mass(self, mass: float, body: int | None = None):
+        """Set the mass [kg] of every free particle (of one body, or of all); pinned ones stay pinned.
+
+        Bumps ``mass_version`` so solvers that factorise a mass matrix know to refactorise.
+        """
+        sel = np.ones(self.n_particles, bool) if body is None else np.zeros(self.n_particles, bool)
+        if body is not None:
+            sel[self.bodies[body].particles] = True
+        free = self.mass_np > 0
+        self.mass_np = np.where(sel & free, float(mass), self.mass_np)
+        self.mass.from_numpy(self.mass_np.astype(self.real))
+        self.inv_mass.from_numpy(np.where(self.mass_np > 0, 1.0 / np.maximum(self.mass_np, 1e-300), 0.0).astype(self.real))
+        self.mass_version += 1
 
     def set_gravity(self, g):
         """Gravity [m/s^2] as a 3-vector."""

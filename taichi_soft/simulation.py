@@ -110,6 +110,15 @@ class Simulation:
         self.time_base = 0.0
         self.diverged_step = None
 
+    def set_integrator(self, integrator):
+        """Continue from the current state with another integrator (an ``Integrator`` built on
+        this simulation's model and terrain, or a registered name)."""
+        if isinstance(integrator, str):
+            integrator = make_integrator(integrator, self.model, self.terrain, self.scene.data.get("solver", {}))
+        integrator.reset()
+        self.integrator = integrator
+        self.integrator_name = integrator.name
+
     def set_dt(self, dt: float):
         """Change the time step [s] from the next step on."""
         self.time_base = self.time

@@ -153,9 +153,7 @@ class DemoController:
         if integ is None:
             integ = make_integrator(name, self.sim.model, self.sim.terrain, self._options(name, self.sim.scene))
             self._integrators[name] = integ
-        integ.reset()
-        # Simulation has no setter: its integrator is a plain attribute that ``advance`` reads.
-        self.sim.integrator, self.sim.integrator_name = integ, name
+        self.sim.set_integrator(integ)
         self.settings.integrator = name
         if self.sim.diverged or self.message:
             self.reset()
@@ -200,11 +198,7 @@ class DemoController:
         self.settings.particle_mass = float(mass)
         if self._mass_applied == mass:
             return
-        model = self.sim.model
-        free = model.mass_np > 0
-        model.mass_np = np.where(free, float(mass), 0.0)  # Diagnostics' centre of mass reads it
-        model.mass.from_numpy(model.mass_np.astype(model.real))
-        model.inv_mass.from_numpy(np.where(free, 1.0 / float(mass), 0.0).astype(model.real))
+        self.sim.model.set_particle_mass(float(mass))
         self._mass_applied = mass
         for integ in self._integrators.values():
             # fast_mass_spring keeps M + L factorised and refactorises only when dt or a spring
