@@ -63,3 +63,14 @@ def accelerations(model, terrain, x, v, strategy="per_spring"):
     a = ti.Vector.field(3, float, model.n_particles)
     _eval(fe, state.x, state.v, a)
     return a.to_numpy()
+
+
+def numeric_gradient(fn, x, h=1e-6) -> np.ndarray:
+    """Central finite differences of the scalar ``fn`` with respect to every entry of ``x``."""
+    grad = np.zeros_like(x)
+    for idx in np.ndindex(x.shape):
+        xp, xm = x.copy(), x.copy()
+        xp[idx] += h
+        xm[idx] -= h
+        grad[idx] = (fn(xp) - fn(xm)) / (2 * h)
+    return grad

@@ -5,7 +5,7 @@ import pytest
 from taichi_soft import lattice
 from taichi_soft.lattice import BEND, SHEAR, STRETCH
 
-from physics_helpers import accelerations, build, spring_energy
+from physics_helpers import accelerations, build, numeric_gradient, spring_energy
 
 
 @pytest.mark.parametrize("n, expected", [(2, (12, 16, 0)), (3, (54, 104, 27)), (10, (2700, 7776, 2400))])
@@ -64,14 +64,7 @@ def test_spring_force_is_minus_energy_gradient(strategy):
     x = model.x0_np + 0.05 * rng.standard_normal(model.x0_np.shape)
     v = np.zeros_like(x)
     f = accelerations(model, terrain, x, v, strategy) * model.mass_np[:, None]
-    grad = np.zeros_like(x)
-    h = 1e-6
-    for i in range(len(x)):
-        for c in range(3):
-            xp, xm = x.copy(), x.copy()
-            xp[i, c] += h
-            xm[i, c] -= h
-            grad[i, c] = (spring_energy(model, xp) - spring_energy(model, xm)) / (2 * h)
+    grad = numeric_gradient(lambda y: spring_energy(model, y), x)
     np.testing.assert_allclose(f, -grad, rtol=1e-6, atol=1e-6 * np.abs(grad).max())
 
 
@@ -90,14 +83,7 @@ def test_damper_force_is_minus_dissipation_gradient():
     def dissipation(vel):
         return 0.5 * np.sum(kd * np.einsum("ij,ij->i", vel[a] - vel[b], l) ** 2)
 
-    grad = np.zeros_like(v)
-    h = 1e-6
-    for i in range(len(v)):
-        for c in range(3):
-            vp, vm = v.copy(), v.copy()
-            vp[i, c] += h
-            vm[i, c] -= h
-            grad[i, c] = (dissipation(vp) - dissipation(vm)) / (2 * h)
+    grad = numeric_gradient(dissipation, v)
     np.testing.assert_allclose(f, -grad, rtol=1e-6, atol=1e-8)
 
 
