@@ -304,6 +304,59 @@ def cmd_compare(args) -> int:
     return EXIT_OK
 
 
+def cmd_bench(args) -> int:
+    """``bench accuracy|stability|speed|report``: measure and write CSV, PNG and Markdown (docs/benchmarks.md)."""
+    import time
+
+    from . import runtime
+    from .progress import Progress
+
+    if args.study == "speed-worker":  # internal: one (arch, precision) per process, JSON on stdout
+        from .bench.report import run_speed_worker
+
+        runtime.init(args.arch, args.precision, kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
+        print(json.dumps(run_speed_worker(args.quick)))
+        return EXIT_OK
+    default = "out/benchmarks-quick" if args.quick else "docs/benchmarks"
+    out_dir = check_output_dir(args.out or default, "--out")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    runtime.init("cpu", "f64")
+    from .bench import report
+
+    bar = Progress(1, f"bench {args.study}")
+
+    def progress(done, total, what):
+        bar.total = max(total, 1)
+        bar.update(done, what[:60], force=True)
+
+    start = time.perf_counter()
+    acc = stab = speed = None
+    files = []
+    if args.study in ("accuracy", "report"):
+        acc = report.run_accuracy(args.quick, progress)
+        files += report.write_accuracy(acc, out_dir)
+    if args.study in ("stability", "report") and not (acc and acc["interrupted"]):
+        stab = report.run_stability(args.quick, progress)
+        files += report.write_stability(stab, out_dir)
+    if args.study in ("speed", "report") and not any(r and r["interrupted"] for r in (acc, stab)):
+        speed = report.run_speed(args.quick, progress)
+        files += report.write_speed(speed, out_dir)
+    bar.close()
+    command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
+    name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
+    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start)
+    if name != "REPORT.md":
+        md = md.rename(out_dir / name)
+    files.append(md.name)
+    if acc:
+        for case, data in acc["cases"].items():
+            orders = ", ".join(f"{k} {v:.2f}" for k, v in data["orders"].items() if v is not None)
+            print(f"fitted orders ({case}): {orders}")
+    print(f"wrote {len(files)} files to {out_dir}: {md}")
+    interrupted = any(r and r["interrupted"] for r in (acc, stab, speed))
+    return 130 if interrupted else EXIT_OK
+
+
 def cmd_demo(args) -> int:
     """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
     scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
@@ -339,6 +392,14 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--frames", type=int, help=argparse.SUPPRESS)
     p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
     p_demo.set_defaults(func=cmd_demo)
+    p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
+    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "report", "speed-worker"],
+                         help="what to measure; report runs all three and writes REPORT.md")
+    p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
+    p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
+    p_bench.add_argument("--arch", default="cpu", help=argparse.SUPPRESS)
+    p_bench.add_argument("--precision", default="f64", help=argparse.SUPPRESS)
+    p_bench.set_defaults(func=cmd_bench)
     p_list = sub.add_parser("list", help="list scenes, integrators and backends")
     p_list.set_defaults(func=cmd_list)
     return parser

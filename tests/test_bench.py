@@ -58,3 +58,50 @@ def test_bisection_finds_rk4_limit_of_undamped_spring():
     omega = np.sqrt(k / 0.5)  # reduced mass m / 2
     res = largest_stable_dt(_probe(model, terrain, "rk4", steps=40000), 1e-4, 1e-1, rel_tol=0.005)
     assert res["dt"] == pytest.approx(2 * np.sqrt(2) / omega, rel=0.03)
+
+
+def test_work_precision_orders_on_the_smooth_case():
+    """bench accuracy's fitted orders: 1, 1, 2, 4 for the explicit family on the smooth case."""
+    from taichi_soft.bench import accuracy
+
+    _, _, t_end = accuracy.CASES["smooth"]
+    caps = {"explicit_euler": 1e-3, "semi_implicit_euler": 1e-3, "midpoint": 2e-3, "rk4": 2.5e-3}
+    sweeps = {name: accuracy.step_sizes(t_end, 10, cap, 3) for name, cap in caps.items()}
+    rows, interrupted = accuracy.run_case("smooth", sweeps, repeats=1)
+    assert not interrupted and not any(r["diverged"] for r in rows)
+    for name, order in {"explicit_euler": 1, "semi_implicit_euler": 1, "midpoint": 2, "rk4": 4}.items():
+        assert accuracy.fitted_order(rows, name) == pytest.approx(order, abs=0.25), name
+    assert all(r["force_evals"] > 0 and r["wall_s"] > 0 for r in rows)
+
+
+@pytest.mark.parametrize("precision", ["f64"])
+def test_numpy_and_warp_references_agree_with_engine(precision):
+    """The speed study compares like with like: the same steps give the same final state."""
+    from taichi_soft.bench.speed import compare_references
+
+    r = compare_references(4, precision, chunk=50, repeats=1)
+    assert r["max_abs_diff_numpy"] < 1e-12
+    if "max_abs_diff_warp" in r:
+        assert r["max_abs_diff_warp"] < 1e-12
+    assert r["engine_steps_per_s"] > 0 and r["numpy_steps_per_s"] > 0
+
+
+def test_bench_report_quick_writes_every_file(cli, tmp_path):
+    out = tmp_path / "bench"
+    r = cli("bench", "report", "--quick", "--out", out, timeout=900)
+    assert r.returncode == 0, r.stderr[-2000:]
+    expected = ["REPORT.md", "accuracy_smooth.csv", "accuracy_smooth_wall.png", "accuracy_smooth_evals.png",
+                "accuracy_drop.csv", "accuracy_drop_wall.png", "accuracy_drop_evals.png", "stability_terrain.csv",
+                "stability_stiffness.csv", "stability_stiffness.png", "speed.csv", "speed.json",
+                "speed_cpu_f64.png", "speed_cpu_f32.png"]
+    for name in expected:
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    report = (out / "REPORT.md").read_text()
+    for heading in ("## Work-precision", "## Stability", "## Kernel speed", "Machine:", "Command:"):
+        assert heading in report
+    import csv
+
+    speed_rows = list(csv.DictReader(open(out / "speed.csv")))
+    assert {r["integrator"] for r in speed_rows} >= {"explicit_euler", "semi_implicit_euler", "midpoint", "rk4"}
+    assert all(float(r["steps_per_s"]) > 0 for r in speed_rows)
+    assert "fitted orders (smooth)" in r.stdout

@@ -64,3 +64,138 @@ def table(rows: list[dict]) -> str:
         out.append(f"| {r['integrator']} | {r['n']} | {r['particles']} | {r['mode']} | {r['steps_per_s']:,.0f} | "
                    f"{r['ns_per_particle_step']:.1f} | {r['realtime_factor']:.2f} |")
     return "\n".join(out)
+
+
+# -- references: numpy and NVIDIA Warp on the same cube and integrator -----------------------------
+def compare_references(n: int, precision: str, chunk: int, repeats: int = 5) -> dict:
+    """Semi-implicit Euler steps/s of the engine, numpy and (if installed) Warp on one n^3 cube.
+
+    Scene: the default cube without terrain, started stretched (springs and dampers all working).
+    All three take the same steps from the same state; their final states must agree (checked
+    here and in the tests), so the ratios compare like with like.
+    """
+    import numpy as np
+
+    from .references import NumpyStepper, WarpStepper, warp_available
+
+    real = np.float64 if precision == "f64" else np.float32
+    scene = load_scene("plane", [f"body.0.n={n}", "terrain.kind=none", "body.0.initial_stretch=[1.05, 0.97, 1.0]"])
+    sim = Simulation(scene, integrator="semi_implicit_euler")
+    x0, v0 = sim.model.x0_np, sim.model.v0_np
+    out = {"n": n, "particles": n**3, "springs": sim.model.n_springs, "chunk": chunk, "precision": precision}
+
+    def timed(reset, advance, sync):
+        advance(2)  # warm-up: compiles
+        sync()
+        times = []
+        for _ in range(repeats):
+            reset()
+            sync()
+            t0 = time.perf_counter()
+            advance(chunk)
+            sync()
+            times.append(time.perf_counter() - t0)
+        return chunk / statistics.median(times)
+
+    def sim_reset():
+        sim.reset()
+
+    out["engine_steps_per_s"] = timed(sim_reset, sim.advance, ti.sync)
+    out["engine_mode"] = "serial" if sim.integrator._serial() else "parallel"
+    engine_x = sim.state.x.to_numpy()
+
+    nps = NumpyStepper(sim.model, x0, v0, sim.dt, real)
+
+    def np_reset():
+        nps.x[:] = x0
+        nps.v[:] = v0
+
+    np_chunk_scale = 1 if n <= 20 else 0.1  # numpy is slow: time fewer steps at large n
+    c0 = chunk
+    chunk = max(1, int(c0 * np_chunk_scale))
+    out["numpy_steps_per_s"] = timed(np_reset, nps.step, lambda: None)
+    chunk = c0
+    np_reset()
+    nps.step(chunk)
+    out["max_abs_diff_numpy"] = float(np.abs(nps.x - engine_x).max())
+    if warp_available():
+        ws = WarpStepper(sim.model, x0, v0, sim.dt, precision, "cpu")
+
+        def warp_reset():
+            ws.x.assign(np.asarray(x0, real))
+            ws.v.assign(np.asarray(v0, real))
+
+        out["warp_cpu_steps_per_s"] = timed(warp_reset, ws.step, ws.sync)
+        out["max_abs_diff_warp"] = float(np.abs(ws.numpy()[0] - engine_x).max())
+        out["ratio_engine_over_warp_cpu"] = out["engine_steps_per_s"] / out["warp_cpu_steps_per_s"]
+    out["ratio_engine_over_numpy"] = out["engine_steps_per_s"] / out["numpy_steps_per_s"]
+    return out
+
+
+# -- memory bandwidth bound ------------------------------------------------------------------------
+def measured_bandwidth(mbytes: int = 256, repeats: int = 5) -> float:
+    """Copy bandwidth [bytes/s] of a parallel Taichi kernel over two ``mbytes`` MB f32 fields."""
+    n = mbytes * 2**20 // 4
+    src = ti.field(ti.f32, n)
+    dst = ti.field(ti.f32, n)
+
+    @ti.kernel
+    def copy():
+        for i in src:
+            dst[i] = src[i]
+
+    copy()
+    ti.sync()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        copy()
+        ti.sync()
+        times.append(time.perf_counter() - t0)
+    return 2 * n * 4 / statistics.median(times)
+
+
+def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: str) -> int:
+    """Compulsory memory traffic [bytes] of one semi-implicit Euler step (each array touched once).
+
+    Particles: read x, v; write x, v; write then read the acceleration; mass and inverse mass.
+    ``per_spring``: springs' ends (2 i32), rest length, group (i32), the spring force written and
+    read; adjacency: 2 i32 per spring end plus offsets and splits. ``gather``: per adjacency entry
+    the other end (i32), rest length and group (i32), plus offsets.
+    """
+    vec = 3 * real_bytes
+    particles = n_particles * (6 * vec + 2 * real_bytes)
+    if strategy == "per_spring":
+        springs = n_springs * (8 + real_bytes + 4 + 2 * vec) + 2 * n_springs * 4 + 2 * n_particles * 4
+    else:
+        springs = 2 * n_springs * (4 + real_bytes + 4) + n_particles * 4
+    return particles + springs
+
+
+# -- kernel profile ------------------------------------------------------------------------------------
+def kernel_profile(integrator: str, n: int, steps: int = 50) -> list[dict]:
+    """Per-task times of one integrator's parallel step (needs ``kernel_profiler=True`` at init).
+
+    Taichi names each parallel loop of a kernel ``<kernel>_kernel_<k>_range_for``, k in source order
+    (for ``semi_implicit_euler`` with gather forces: 1 = forces, 2 = update and collision).
+    """
+    from taichi.profiler.kernel_profiler import get_default_kernel_profiler
+
+    sim = Simulation(load_scene("plane", [f"body.0.n={n}", "body.0.rotation.degrees=0"]), integrator=integrator,
+                     options={"mode": "parallel"})
+    sim.advance(5)
+    ti.sync()
+    ti.profiler.clear_kernel_profiler_info()
+    sim.advance(steps)
+    ti.sync()
+    prof = get_default_kernel_profiler()
+    prof._update_records()  # noqa: SLF001 - Taichi 1.7 exposes per-task statistics only here
+    prof._count_statistics()  # noqa: SLF001
+    stats = prof._statistical_results  # noqa: SLF001
+    total = sum(s.total_time for name, s in stats.items() if name.startswith("_advance_parallel"))
+    rows = []
+    for name, s in stats.items():
+        if name.startswith("_advance_parallel"):
+            rows.append({"task": name.split("_kernel_", 1)[-1], "calls": s.counter, "ms_per_step": s.total_time / steps,
+                         "share": s.total_time / total if total else 0.0})
+    return rows
