@@ -152,16 +152,19 @@ def test_fast_mass_spring_pcg_fallback_matches_cholesky():
 def test_first_order_convergence_to_the_explicit_solution(name):
     """Errors against a tiny-step RK4 reference halve with dt (first order, backward Euler)."""
     model, terrain, x0 = _moving_cube(n=3)
-    t_end = 0.2
-    x_ref, _, _ = simulate(model, terrain, "rk4", 2e-4, 1000, x0=x0)
+    t_end = 0.1
+    x_ref, _, _ = simulate(model, terrain, "rk4", 1e-4, 1000, x0=x0)
+    integ = make_integrator(name, model, terrain, TIGHT[name])
+    state = model.state()
     errors = []
-    for steps in (10, 20, 40, 80):
-        x, _, done = simulate(model, terrain, name, t_end / steps, steps, x0=x0, options=TIGHT[name])
-        assert done == steps
-        errors.append(np.abs(x - x_ref).max())
+    for steps in (20, 40, 80, 160):
+        state.set(x0, model.v0_np)
+        integ.reset()
+        assert integ.advance(state, t_end / steps, steps) == steps
+        errors.append(np.abs(state.x.to_numpy() - x_ref).max())
     rates = [math.log2(a / b) for a, b in zip(errors[:-1], errors[1:])]
-    assert all(0.8 < r < 1.3 for r in rates), (errors, rates)
-    assert errors[-1] < 0.05
+    assert all(0.8 < r < 1.2 for r in rates), (errors, rates)
+    assert errors[-1] < 0.02
 
 
 def test_energy_does_not_grow_without_dampers():
@@ -239,8 +242,9 @@ def _sim(terrain, integrator, stiffness=1.0):
     return sim
 
 
-def _run_checked(sim, seconds):
-    """Run in 0.1 s chunks; returns the smallest terrain distance seen [m] and the max speeds."""
+def _run_checked(sim, seconds, kinetic=None):
+    """Run in 0.1 s chunks; returns the smallest terrain distance seen [m] and the max speeds
+    [m/s]; appends the kinetic energies [J] to ``kinetic`` if given."""
     min_d, speeds = math.inf, []
     for _ in range(int(round(seconds * 10))):
         sim.advance(6)
@@ -248,6 +252,8 @@ def _run_checked(sim, seconds):
         m = sim.measure()
         min_d = min(min_d, m["min_terrain_distance"])
         speeds.append(m["max_speed"])
+        if kinetic is not None:
+            kinetic.append(m["kinetic_energy"])
     return min_d, speeds
 
 
@@ -261,10 +267,16 @@ PENETRATION_TOL = 1e-9
 @pytest.mark.parametrize("terrain", ["plane", "bowl"])
 def test_stable_and_comes_to_rest_at_frame_step(terrain, name, stiffness):
     sim = _sim(terrain, name, stiffness)
-    min_d, speeds = _run_checked(sim, 8.0 if terrain == "plane" else 10.0)
+    kinetic = []
+    min_d, speeds = _run_checked(sim, 7.0 if terrain == "plane" else 12.0, kinetic)
     assert min_d > -PENETRATION_TOL
     assert max(speeds) > 5.0  # it did fall and land
-    assert speeds[-1] < 0.1, speeds[-10:]  # at rest (bowl: rocking has died out)
+    # Brought to rest: over the last 0.5 s the kinetic energy stays below 0.1 % of its peak (the
+    # landing) and no particle moves faster than 0.5 m/s; what is left is the last of the rocking
+    # in the bowl and contact jitter at the solver tolerance (residual / dt). For scale,
+    # semi_implicit_euler at dt = 1 ms keeps particles jittering at 0.5 m/s in the bowl.
+    assert max(kinetic[-5:]) < 1e-3 * max(kinetic), (max(kinetic), kinetic[-5:])
+    assert max(speeds[-5:]) < 0.5, speeds[-10:]
 
 
 @pytest.mark.parametrize("stiffness", [1.0, 10.0])
@@ -272,47 +284,61 @@ def test_stable_and_comes_to_rest_at_frame_step(terrain, name, stiffness):
 def test_stable_on_the_sphere_at_frame_step(name, stiffness):
     """The default cube lands off-centre on the ball and slides off it: no rest state exists."""
     sim = _sim("sphere", name, stiffness)
-    min_d, _ = _run_checked(sim, 3.0)
+    min_d, speeds = _run_checked(sim, 4.0)
     assert min_d > -PENETRATION_TOL
-    com = sim.measure()["center_of_mass"]
-    assert com[1] < -3.0  # fell past the ball
+    assert sim.measure()["center_of_mass"][1] < -1.0  # slid off, below the ball's centre
 
 
-def _slope_velocity(sim, t0, t1):
-    """Mean velocity along the tilted plane's downhill direction at t0 and t1 [m/s]."""
-    downhill = np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)
+def _slide(sim, speed=5.0, times=(0.4, 1.0)):
+    """Put the unrotated cube on the plane y = -1 moving along x at ``speed`` [m/s]; returns the
+    mean x velocity [m/s] at each of ``times`` [s] (after the reset of ``_sim``)."""
+    from taichi_soft.lattice import lattice_points
+
+    spec = sim.model.bodies[0].spec
+    x = lattice_points(spec.n, spec.size) + np.array([0.0, -1.0 + 0.5 * spec.size + 0.005, 0.0])
+    v = np.zeros_like(x)
+    v[:, 0] = speed
+    sim.reset()
+    sim.state.set(x, v)
+    sim.terrain.reset(sim.state.x)
     out = []
-    for t in (t0, t1):
+    for t in times:
         sim.advance(int(round(t / sim.dt)) - sim.steps)
         assert not sim.diverged
-        out.append(float(sim.state.numpy()[1].mean(0) @ downhill))
+        assert sim.measure()["min_terrain_distance"] > -PENETRATION_TOL
+        out.append(float(sim.state.numpy()[1][:, 0].mean()))
     return out
 
 
 @pytest.mark.parametrize("stiffness", [1.0, 10.0])
 @pytest.mark.parametrize("name", IMPLICIT)
-def test_tilted_plane_slides_with_coulomb_friction(name, stiffness):
-    """45 degrees, mu = 0.3: the cube cannot rest; it slides at g (sin - mu cos) like the explicit methods."""
-    sim = _sim("tilted_plane", name, stiffness)
-    min_d, _ = _run_checked(sim, 2.0)
+def test_sliding_cube_decelerates_at_mu_g(name, stiffness):
+    """Coulomb friction (mu = 0.3) on a cube sliding on the plane: deceleration mu g, as for the
+    explicit methods (next test), until it stops."""
+    sim = _sim("plane", name, stiffness)
+    v0, v1 = _slide(sim)
+    assert (v0 - v1) / 0.6 == pytest.approx(0.3 * 9.8, rel=0.1)
+    # Stops after sliding v^2 / (2 mu g) = 4.25 m (then only rocks back elastically).
+    _slide(sim, times=(2.5,))
+    assert sim.measure()["center_of_mass"][0] == pytest.approx(5.0 ** 2 / (2 * 0.3 * 9.8), rel=0.1)
+
+
+def test_sliding_deceleration_matches_semi_implicit_euler():
+    sim = _sim("plane", "semi_implicit_euler")
+    sim.set_dt(0.001)
+    v0, v1 = _slide(sim)
+    assert (v0 - v1) / 0.6 == pytest.approx(0.3 * 9.8, rel=0.1)
+    _slide(sim, times=(2.5,))
+    assert sim.measure()["center_of_mass"][0] == pytest.approx(5.0 ** 2 / (2 * 0.3 * 9.8), rel=0.1)
+
+
+@pytest.mark.parametrize("name", IMPLICIT)
+def test_tilted_plane_stays_out_of_the_terrain(name):
+    """45 degrees with mu = 0.3: no rest state (the cube slides and tumbles downhill)."""
+    sim = _sim("tilted_plane", name, 10.0)
+    min_d, speeds = _run_checked(sim, 3.0)
     assert min_d > -PENETRATION_TOL
-    v0, v1 = _slope_velocity(sim, 3.0, 5.0)
-    accel = (v1 - v0) / 2.0
-    expected = 9.8 * math.sqrt(0.5) * (1 - 0.3)
-    assert accel == pytest.approx(expected, rel=0.1)
-    assert sim.measure()["min_terrain_distance"] > -PENETRATION_TOL
-
-
-def test_tilted_plane_friction_matches_semi_implicit_euler():
-    """Same scene, explicit at its usual step: the sliding speeds agree."""
-    from taichi_soft.integrators import names
-    from taichi_soft.scene import load_scene
-    from taichi_soft.simulation import Simulation
-
-    ref = Simulation(load_scene("tilted_plane", integrator_names=names()), "semi_implicit_euler", 0.001)
-    ref_v = _slope_velocity(ref, 3.0, 5.0)
-    imp_v = _slope_velocity(_sim("tilted_plane", "implicit_euler"), 3.0, 5.0)
-    assert (imp_v[1] - imp_v[0]) == pytest.approx(ref_v[1] - ref_v[0], rel=0.1)
+    assert speeds[-1] > 10.0
 
 
 @pytest.mark.parametrize("stiffness", [1.0, 10.0])
@@ -322,3 +348,13 @@ def test_explicit_family_diverges_at_frame_step(name, stiffness):
     sim = _sim("plane", name, stiffness)
     sim.advance(int(3.0 / FRAME))
     assert sim.diverged
+
+
+@pytest.mark.parametrize("name", IMPLICIT)
+def test_serial_and_parallel_launches_agree(name):
+    """The parallel mode (Python-driven phases, one launch each) runs the same ti.funcs."""
+    model, terrain = build(n=3, size=1.0, gravity=(0.0, -9.8, 0.0), terrain="plane",
+                           geometry={"point": [0.0, -0.6, 0.0], "normal": [0.0, 1.0, 0.0]},
+                           center=(0.0, 0.2, 0.0), velocity=(1.0, -2.0, 0.0), angular_velocity=(0.0, 2.0, 1.0))
+    out = [simulate(model, terrain, name, FRAME, 30, options={"mode": mode})[0] for mode in ("serial", "parallel")]
+    assert np.abs(out[0] - out[1]).max() < 1e-6
