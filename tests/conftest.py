@@ -9,9 +9,14 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@pytest.fixture(scope="session", autouse=True)
+@pytest.fixture(scope="module", autouse=True)
 def taichi_runtime():
-    """Taichi can be initialised once per process; every in-process test shares this CPU f64 runtime."""
+    """A fresh CPU f64 Taichi runtime for each test module.
+
+    Every field allocated after a kernel has run opens a new Taichi SNode tree, and a runtime
+    holds a bounded number of them (Taichi 1.7 crashes past the limit); re-initialising per
+    module frees them all. Objects never cross modules, so nothing is lost.
+    """
     from taichi_soft import runtime
 
     return runtime.init("cpu", "f64")
