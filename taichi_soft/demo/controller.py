@@ -200,11 +200,6 @@ class DemoController:
             return
         self.sim.model.set_particle_mass(float(mass))
         self._mass_applied = mass
-        for integ in self._integrators.values():
-            # fast_mass_spring keeps M + L factorised and refactorises only when dt or a spring
-            # parameter changes; forget its key so the new masses enter the matrix.
-            if hasattr(integ, "_matrix_key"):
-                integ._matrix_key = None
 
     def set_gravity(self, magnitude: float):
         """Gravity [m/s^2] along the scene's direction (straight down for a weightless scene)."""

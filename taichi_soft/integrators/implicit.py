@@ -566,8 +566,9 @@ class FastMassSpring(ImplicitIntegrator):
 
     # -- the constant global matrix A = M + L, L with weights c_s = h^2 k_s + h kd_s -------------
     def _prepare(self, dt: float):
-        """(Re)build the global matrix when dt, a stiffness or a damper coefficient changed."""
-        key = (float(dt), self.model.group_k.to_numpy().tobytes(), self.model.group_kd.to_numpy().tobytes())
+        """(Re)build the global matrix when dt, a stiffness, a damper coefficient or a mass changed."""
+        key = (float(dt), self.model.group_k.to_numpy().tobytes(), self.model.group_kd.to_numpy().tobytes(),
+               self.model.mass_version)
         if key == self._matrix_key:
             return
         self._k_weights(dt)
