@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import taichi as ti
 
 from ..lattice import SPRING_KINDS
 from ..render.camera import CameraSpec, scene_camera
-from ..render.renderer import BACKGROUND, SPRING_COLORS, Renderer, SimulationView
+from ..render.renderer import SimulationView, aim_camera, apply_camera, draw_view
 from . import hud
 from .canvas2d import Batch2D
 from .capture import Recording, default_path
@@ -42,12 +41,9 @@ def _left_of_panel(spec: CameraSpec, aspect: float) -> CameraSpec:
     width angle)) half-widths; the panel covers ``PANEL_W`` of the width, so slide by half of it.
     """
     eye, target = np.asarray(spec.position, float), np.asarray(spec.lookat, float)
-    back = eye - target
-    distance = np.linalg.norm(back)
-    right = np.cross(-back, spec.up)
-    right /= max(np.linalg.norm(right), 1e-12)
+    distance = np.linalg.norm(eye - target)
     half_w = np.tan(np.radians(spec.fov) / 2) * aspect * distance
-    shift = PANEL_W * half_w * right
+    shift = PANEL_W * half_w * spec.right()
     return replace(spec, position=tuple(eye + shift), lookat=tuple(target + shift))
 
 
@@ -91,11 +87,7 @@ class DemoApp:
         self._fov = spec.fov
         self._distance = float(np.linalg.norm(np.subtract(spec.position, spec.lookat)))
         self._com = None
-        c = self.camera
-        c.position(*spec.position)
-        c.lookat(*spec.lookat)
-        c.up(*spec.up)
-        c.fov(spec.fov)
+        aim_camera(self.camera, spec)
 
     def _update_camera(self, com):
         c = self.camera
@@ -113,8 +105,7 @@ class DemoApp:
         # track_user_inputs keeps the look-at point 1 m ahead; the lights are placed from the
         # camera-to-target distance, so aim at the original distance to keep the lighting fixed.
         spec = CameraSpec(tuple(eye), tuple(eye + self._distance * front), tuple(c.curr_up.to_numpy()), self._fov)
-        # The renderer's camera-and-lights setup, applied to this window's scene and camera.
-        Renderer._set_camera(SimpleNamespace(scene=self.scene, camera=c), spec)
+        apply_camera(self.scene, c, spec)  # the renderer's camera and lights
 
     # -- one frame --------------------------------------------------------------------------
     def frame(self):
@@ -144,16 +135,9 @@ class DemoApp:
 
     def _draw_scene(self):
         v = self.view
-        v.show_surface, v.show_particles, v.show_springs = self.draw["surface"], self.draw["particles"], False
-        v.draw(self.scene)
-        # Springs kind by kind (the view draws all kinds or none), in the renderer's colours.
-        for kind in SPRING_KINDS:
-            first, count = v.spring_ranges.get(kind, (0, 0))
-            if self.draw[kind] and count:
-                self.scene.lines(v.points, width=1.0, indices=v.spring_indices, color=SPRING_COLORS[kind],
-                                 index_offset=first, index_count=count)
-        self.canvas.set_background_color(BACKGROUND)
-        self.canvas.scene(self.scene)
+        v.show_surface, v.show_particles = self.draw["surface"], self.draw["particles"]
+        v.show_springs = {kind for kind in SPRING_KINDS if self.draw[kind]}
+        draw_view(self.canvas, self.scene, v)
 
     def _draw_hud(self):
         batch = Batch2D(self.size)

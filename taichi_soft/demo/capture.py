@@ -10,9 +10,8 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-import numpy as np
-
 from ..render.outputs import BackgroundWriter, VideoFile
+from ..render.window import window_rgb
 
 VIDEO_FPS = 30
 MAX_REPEAT = 15  # frames one displayed frame may fill (a stall longer than 0.5 s is not padded)
@@ -22,16 +21,6 @@ def default_path(kind: str, scene: str, suffix: str, folder: str = "out") -> Pat
     """``out/demo-<scene>-<YYYYmmdd-HHMMSS>.<suffix>`` (created folder included)."""
     Path(folder).mkdir(parents=True, exist_ok=True)
     return Path(folder) / f"demo-{scene}-{kind}-{datetime.now():%Y%m%d-%H%M%S}{suffix}"
-
-
-def window_rgb(window) -> np.ndarray:
-    """The window's last frame as uint8 RGB [height, width, 3], top row first.
-
-    GGUI returns float32 [width, height, 4] with the origin at the bottom left.
-    """
-    buf = window.get_image_buffer_as_numpy()
-    rgb = buf[:, ::-1, :3].transpose(1, 0, 2)
-    return (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 class Recording:

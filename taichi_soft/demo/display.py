@@ -2,19 +2,19 @@
 
 Two things can be missing: a display (GLFW then aborts the whole process with "cannot initialize
 GLFW", so it is probed first, without GLFW) and a Vulkan device (GGUI raises a RuntimeError and
-its C++ side prints more lines to stderr, which are kept out of the terminal).
+its C++ side prints more lines to stderr, which are kept out of the terminal: both handled by
+``render.window.open_window``, which the offscreen renderer uses too).
 """
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import ctypes.util
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 from ..errors import UserError
+from ..render.window import NoVulkanDevice, open_window
 
 FALLBACK = "render offline instead: python main.py run --video out/demo.mp4"
 
@@ -53,33 +53,12 @@ def _x_display_answers(display: str) -> bool:
     return True
 
 
-@contextlib.contextmanager
-def _native_stderr_captured():
-    """Divert file descriptor 2 (Taichi's C++ messages) into a buffer; yields a list that gets the text."""
-    sys.stderr.flush()
-    captured: list[str] = []
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as sink:
-        os.dup2(sink.fileno(), 2)
-        try:
-            yield captured
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            sink.seek(0)
-            captured.append(sink.read().decode(errors="replace"))
-
-
 def open_demo_window(title: str, size: tuple[int, int], fps_limit: int = 60):
     """A visible GGUI window of ``size`` (width, height) pixels; ``UserError`` (one line) if impossible."""
     problem = display_problem()
     if problem:
         raise UserError(f"demo needs a window and {problem}; {FALLBACK}")
-    import taichi as ti
-
-    with _native_stderr_captured():
-        try:
-            return ti.ui.Window(title, tuple(size), vsync=False, show_window=True, fps_limit=fps_limit)
-        except Exception as e:  # noqa: BLE001 - GGUI raises a bare RuntimeError without Vulkan
-            reason = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
-    raise UserError(f"demo needs a Vulkan device and none is usable here ({reason}); {FALLBACK}")
+    try:
+        return open_window(size[0], size[1], title, visible=True, fps_limit=fps_limit)
+    except NoVulkanDevice as e:
+        raise UserError(f"demo needs a Vulkan device and none is usable here ({e.error}); {FALLBACK}") from None

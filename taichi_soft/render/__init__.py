@@ -2,7 +2,8 @@
 
 camera.py    scene / default cameras, GGUI's view and projection matrices (numpy)
 meshes.py    terrain meshes matching the collision shapes; bodies' surface mesh on the device
-renderer.py  the hidden GGUI window and what one simulation draws into it
+window.py    opening a GGUI window (hidden or shown, one-line error without Vulkan), image readback
+renderer.py  the hidden GGUI window and what one simulation draws into it; camera and lights
 overlay.py   text drawn onto frames with Pillow
 outputs.py   video files, PNG folders, the background writer thread; all written atomically
 export.py    per-frame surface meshes as PLY or OBJ

@@ -31,7 +31,7 @@ def main(argv=None) -> int:
     from . import overlay
     from .camera import scene_camera
     from .outputs import PngFrames, VideoFile
-    from .renderer import Renderer, SimulationView
+    from .renderer import Renderer, SimulationView, apply_camera, draw_view
 
     p = argparse.ArgumentParser(prog="python -m taichi_soft.render.benchmark", description=__doc__.splitlines()[0])
     p.add_argument("--scene", default="plane")
@@ -51,9 +51,8 @@ def main(argv=None) -> int:
 
     def render_only():
         view.update()
-        renderer._set_camera(cam)
-        view.draw(renderer.scene)
-        renderer.canvas.scene(renderer.scene)
+        apply_camera(renderer.scene, renderer.camera, cam)
+        draw_view(renderer.canvas, renderer.scene, view)
         renderer.window.get_image_buffer_as_numpy()
 
     def convert():

@@ -45,6 +45,11 @@ class CameraSpec:
     fov: float = DEFAULT_FOV
     follow: bool = False
 
+    def right(self) -> np.ndarray:
+        """Unit vector [world] pointing to the right of the image (view direction x ``up``)."""
+        right = np.cross(-np.subtract(self.position, self.lookat), self.up)
+        return right / max(np.linalg.norm(right), 1e-12)
+
     def following(self, center) -> "CameraSpec":
         """The camera moved so that it looks at ``center`` [m] from the same offset."""
         if not self.follow:

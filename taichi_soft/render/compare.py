@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from . import overlay
-from .outputs import BackgroundWriter, abort_all, commit_all, open_image_sinks
+from .outputs import BackgroundWriter, FrameJob, open_image_sinks
 
 GRID_LINE = (24, 26, 30)  # separators between tiles and the colour of unused cells
 TARGET_TILE_ASPECT = 4 / 3
@@ -68,10 +67,11 @@ class TileResult:
     final_energy: float
 
 
-class Comparison:
+class Comparison(FrameJob):
     """Builds one simulation per integrator and writes the mosaic video / frames.
 
-    ``options`` is a ``RenderOptions``: its resolution is the whole mosaic's.
+    ``options`` is a ``RenderOptions``: its resolution is the whole mosaic's. ``run`` writes,
+    then ``finish()`` (or ``abort()``, see ``FrameJob``).
     """
 
     def __init__(self, scene, integrators: list[str], options, dt: float | None = None):
@@ -128,28 +128,6 @@ class Comparison:
         m = sim.measure()
         tile.image = self.renderer.render(tile.view, self.camera.following(m["center_of_mass"]))
         tile.time, tile.energy = sim.time, m["total_energy"]
-
-    def finish(self) -> list[Path]:
-        """Wait for the writer and move the outputs into place."""
-        try:
-            self.writer.close()
-            return commit_all(self.sinks)
-        except BaseException:
-            self.abort()
-            raise
-        finally:
-            self._close_renderer()
-
-    def abort(self):
-        if self.writer is not None:
-            self.writer.abort()
-        abort_all(self.sinks)
-        self._close_renderer()
-
-    def _close_renderer(self):
-        if self.renderer is not None:
-            self.renderer.close()
-            self.renderer = None
 
     # -- worker thread -----------------------------------------------------------------------
     def _compose(self, item):

@@ -146,6 +146,42 @@ def abort_all(sinks):
             pass
 
 
+class FrameJob:
+    """Base of a run that renders frames (``renderer``) and hands them to a ``writer`` (a
+    ``BackgroundWriter``) for its ``output_sinks()``: ``finish()`` or ``abort()`` ends it, and
+    either closes the renderer. Subclasses set the three and may override ``output_sinks``."""
+
+    renderer = None
+    writer = None
+    sinks = ()
+
+    def output_sinks(self) -> list:
+        return self.sinks
+
+    def finish(self) -> list[Path]:
+        """Wait for the writer and move the outputs into place; returns the paths written."""
+        try:
+            self.writer.close()
+            return commit_all(self.output_sinks())
+        except BaseException:
+            self.abort()
+            raise
+        finally:
+            self._close_renderer()
+
+    def abort(self):
+        """Drop everything: no output file is created or replaced."""
+        if self.writer is not None:
+            self.writer.abort()
+        abort_all(self.output_sinks())
+        self._close_renderer()
+
+    def _close_renderer(self):
+        if self.renderer is not None:
+            self.renderer.close()
+            self.renderer = None
+
+
 class BackgroundWriter:
     """Runs ``handle(item)`` for each submitted item, in order, on one worker thread.
 

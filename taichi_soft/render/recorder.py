@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import overlay
-from .outputs import BackgroundWriter, abort_all, commit_all, open_image_sinks
+from .outputs import BackgroundWriter, FrameJob, open_image_sinks
 
 HOLD_SECONDS = 1.0  # how long a diverged run's last frame stays on screen with the banner
 
@@ -41,7 +41,7 @@ class RenderOptions:
         return self.needs_renderer or self.mesh_dir is not None
 
 
-class FrameRecorder:
+class FrameRecorder(FrameJob):
     """Callable ``on_frame(sim)`` for ``Simulation.run``; then ``finish()`` or ``abort()``.
 
     Opening it opens the offscreen window, so a machine without Vulkan fails here, in one line
@@ -101,33 +101,22 @@ class FrameRecorder:
         if self.progress is not None:
             self.progress(self.frames, sim)
 
+    def output_sinks(self) -> list:
+        return self.image_sinks + self.mesh_sinks
+
     def finish(self) -> list[Path]:
         """Close the outputs (after the diverged hold, if any); returns the paths written."""
-        try:
-            if self.diverged_at is not None and self.last is not None and self.renderer is not None:
+        if self.diverged_at is not None and self.last is not None and self.renderer is not None:
+            try:
                 image, lines = self.last
                 banner = f"DIVERGED at t = {self.diverged_at:.4f} s"
                 for _ in range(max(1, round(HOLD_SECONDS * self.options.fps))):
                     self.writer.submit((self.frames, image, lines, banner, None, self.diverged_at))
                     self.frames += 1
-            self.writer.close()
-            return commit_all(self.image_sinks + self.mesh_sinks)
-        except BaseException:
-            self.abort()
-            raise
-        finally:
-            if self.renderer is not None:
-                self.renderer.close()
-                self.renderer = None
-
-    def abort(self):
-        """Drop everything: no output file is created or replaced."""
-        if self.writer is not None:
-            self.writer.abort()
-        abort_all(self.image_sinks + self.mesh_sinks)
-        if self.renderer is not None:
-            self.renderer.close()
-            self.renderer = None
+            except BaseException:
+                self.abort()
+                raise
+        return super().finish()
 
     # -- worker thread -----------------------------------------------------------------------
     def _write(self, item):

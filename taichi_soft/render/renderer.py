@@ -6,18 +6,13 @@ simulation draws: its surface mesh, terrain meshes and optional particles and sp
 ``renderer.render(view, camera)`` returns the frame as uint8 RGB [height, width, 3].
 """
 
-import contextlib
-import os
-import sys
-import tempfile
-
 import numpy as np
 import taichi as ti
 
-from ..errors import UserError
 from ..lattice import SPRING_KINDS
 from .camera import CameraSpec
 from .meshes import BODY_COLORS, SurfaceMesh, TriMesh, terrain_meshes
+from .window import open_window, window_rgb
 
 BACKGROUND = (0.86, 0.89, 0.93)
 SPRING_COLORS = {"stretch": (0.15, 0.35, 0.95), "shear": (0.10, 0.70, 0.25), "bend": (0.85, 0.15, 0.70)}
@@ -27,39 +22,40 @@ KEY_LIGHT = (0.72, 0.70, 0.66)  # warm, above and left of the camera
 FILL_LIGHT = (0.18, 0.20, 0.24)  # cool, from the other side: faces turned away stay readable
 
 
-@contextlib.contextmanager
-def _stderr_captured():
-    """Divert file descriptor 2 (where Taichi's C++ side prints, e.g. "RHI Error: Can not create
-    Vulkan instance") into a buffer; the yielded list receives the text on exit."""
-    sys.stderr.flush()
-    text: list[str] = []
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as sink:
-        os.dup2(sink.fileno(), 2)
-        try:
-            yield text
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            sink.seek(0)
-            text.append(sink.read().decode(errors="replace"))
+def aim_camera(camera, spec: CameraSpec):
+    """Point a ``ti.ui.Camera`` as ``spec`` says (position, look-at, up, vertical fov)."""
+    camera.position(*spec.position)
+    camera.lookat(*spec.lookat)
+    camera.up(*spec.up)
+    camera.fov(spec.fov)
 
 
-def _last_line(text: str) -> str:
-    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
-    return lines[-1] if lines else ""
+def apply_camera(scene, camera, spec: CameraSpec):
+    """Aim ``camera`` (a ``ti.ui.Camera``) by ``spec``, make it ``scene``'s (a ``ti.ui.Scene``) and
+    light the scene from it: ambient light, a warm key light above and left of the camera and a
+    cool fill light from the other side. Call once per frame, before drawing.
+
+    The lights move with the camera, so every scene and every follow shot is lit the same way;
+    their distance from the target is the camera's.
+    """
+    aim_camera(camera, spec)
+    scene.set_camera(camera)
+    eye, target = np.asarray(spec.position), np.asarray(spec.lookat)
+    back = eye - target
+    dist = np.linalg.norm(back)
+    right = spec.right()
+    up = np.asarray(spec.up, dtype=np.float64) / np.linalg.norm(spec.up)
+    scene.ambient_light(AMBIENT)
+    scene.point_light(tuple(target + back + dist * (0.9 * up - 0.5 * right)), KEY_LIGHT)
+    scene.point_light(tuple(target + 0.6 * back + dist * (0.8 * right - 0.2 * up)), FILL_LIGHT)
 
 
-def open_window(width: int, height: int):
-    """A hidden GGUI window; no Vulkan device raises ``UserError`` with one line saying so."""
-    with _stderr_captured() as native:
-        try:
-            return ti.ui.Window("taichi-soft", (width, height), show_window=False, vsync=False)
-        except Exception as e:  # noqa: BLE001 - GGUI raises a bare RuntimeError for a missing device
-            error = e
-    reason = "; ".join(r for r in (_last_line(str(error)) or type(error).__name__, _last_line(native[0])) if r)
-    raise UserError(f"offscreen rendering needs a Vulkan device and none is usable here ({reason}); "
-                    "install a Vulkan driver (without a GPU: Mesa's lavapipe, package mesa-vulkan-drivers)")
+def draw_view(canvas, scene, view: "SimulationView"):
+    """Draw ``view`` into ``scene`` and the scene onto ``canvas`` over the ``BACKGROUND`` colour
+    (the camera and lights set first, by ``apply_camera``)."""
+    view.draw(scene)
+    canvas.set_background_color(BACKGROUND)
+    canvas.scene(scene)
 
 
 class _StaticMesh:
@@ -86,14 +82,19 @@ class SimulationView:
     """What one ``Simulation`` draws; ``update()`` pulls the current state onto the draw fields.
 
     ``surface``: each body's outer surface, smooth-shaded, one colour per body.
-    ``particles``: every particle as a small sphere. ``springs``: every spring as a line, stretch,
-    shear and bend each in its own colour (``SPRING_COLORS``).
+    ``particles``: every particle as a small sphere. ``springs``: springs as lines, stretch,
+    shear and bend each in its own colour (``SPRING_COLORS``): True for every kind, or the kind
+    names to draw (e.g. ``{"stretch", "bend"}``).
+
+    ``show_surface``, ``show_particles`` and ``show_springs`` (same values as the arguments) can be
+    changed between frames; particles and springs can only be shown by a view built with them.
     """
 
-    def __init__(self, sim, surface: bool = True, particles: bool = False, springs: bool = False):
+    def __init__(self, sim, surface: bool = True, particles: bool = False, springs=False):
         self.sim = sim
         model = sim.model
         self.show_surface, self.show_particles, self.show_springs = surface, particles, springs
+        springs = bool(self.show_springs)  # any kind: the index array of every kind is built
         self.surface = SurfaceMesh(model)
         self.terrain = [_StaticMesh(m) for m in terrain_meshes(sim.scene.data)]
         self.points = None
@@ -110,6 +111,22 @@ class SimulationView:
             counts = np.bincount(kind, minlength=3)
             starts = np.concatenate([[0], np.cumsum(counts)])
             self.spring_ranges = {name: (2 * int(starts[k]), 2 * int(counts[k])) for k, name in enumerate(SPRING_KINDS)}
+
+    @property
+    def show_springs(self) -> frozenset:
+        """The spring kinds drawn (a subset of ``SPRING_KINDS``); set True (all), False (none) or kind names."""
+        return self._show_springs
+
+    @show_springs.setter
+    def show_springs(self, kinds):
+        if isinstance(kinds, (bool, np.bool_)):
+            kinds = SPRING_KINDS if kinds else ()
+        elif isinstance(kinds, str):
+            kinds = (kinds,)
+        unknown = set(kinds) - set(SPRING_KINDS)
+        if unknown:
+            raise ValueError(f"unknown spring kind(s) {sorted(unknown)}; choose from {', '.join(SPRING_KINDS)}")
+        self._show_springs = frozenset(kinds)
 
     @ti.kernel
     def _gather_points(self, x: ti.template()):
@@ -131,11 +148,10 @@ class SimulationView:
             for b, (_, _, first, count) in enumerate(s.bodies):
                 scene.mesh(s.vertices, s.index_array, s.normals, color=BODY_COLORS[b % len(BODY_COLORS)],
                            index_offset=first, index_count=count)
-        if self.show_springs:
-            for name, (first, count) in self.spring_ranges.items():
-                if count:
-                    scene.lines(self.points, width=1.0, indices=self.spring_indices, color=SPRING_COLORS[name],
-                                index_offset=first, index_count=count)
+        for name, (first, count) in self.spring_ranges.items():
+            if name in self._show_springs and count:
+                scene.lines(self.points, width=1.0, indices=self.spring_indices, color=SPRING_COLORS[name],
+                            index_offset=first, index_count=count)
         if self.show_particles:
             scene.particles(self.points, radius=self.particle_radius, color=PARTICLE_COLOR)
 
@@ -167,38 +183,13 @@ class Renderer:
         """
         if update:
             view.update()
-        self._set_camera(cam)
-        view.draw(self.scene)
-        self.canvas.set_background_color(BACKGROUND)
-        self.canvas.scene(self.scene)
+        apply_camera(self.scene, self.camera, cam)
+        draw_view(self.canvas, self.scene, view)
         return self.read_image()
 
-    def _set_camera(self, cam: CameraSpec):
-        c = self.camera
-        c.position(*cam.position)
-        c.lookat(*cam.lookat)
-        c.up(*cam.up)
-        c.fov(cam.fov)
-        self.scene.set_camera(c)
-        # Lights move with the camera so every scene and every follow shot is lit the same way.
-        eye, target = np.asarray(cam.position), np.asarray(cam.lookat)
-        back = eye - target
-        dist = np.linalg.norm(back)
-        right = np.cross(-back, cam.up)
-        right /= max(np.linalg.norm(right), 1e-12)
-        up = np.asarray(cam.up, dtype=np.float64) / np.linalg.norm(cam.up)
-        self.scene.ambient_light(AMBIENT)
-        self.scene.point_light(tuple(target + back + dist * (0.9 * up - 0.5 * right)), KEY_LIGHT)
-        self.scene.point_light(tuple(target + 0.6 * back + dist * (0.8 * right - 0.2 * up)), FILL_LIGHT)
-
     def read_image(self) -> np.ndarray:
-        """The rendered frame as uint8 RGB [height, width, 3], top row first.
-
-        GGUI hands back float32 [width, height, 4] with the origin at the bottom left.
-        """
-        buf = self.window.get_image_buffer_as_numpy()
-        rgb = buf[:, ::-1, :3].transpose(1, 0, 2)
-        return (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        """The rendered frame as uint8 RGB [height, width, 3], top row first (``window_rgb``)."""
+        return window_rgb(self.window)
 
     def close(self):
         self.window.destroy()
