@@ -39,7 +39,7 @@ def measure(integrator: str, n: int, mode: str = "auto", chunk: int | None = Non
             break
     med = statistics.median(times)
     return {
-        "integrator": integrator, "n": n, "particles": n**3, "mode": "serial" if sim.integrator._serial() else "parallel",
+        "integrator": integrator, "n": n, "particles": n**3, "springs": sim.model.n_springs, "mode": "serial" if sim.integrator._serial() else "parallel",
         "chunk": chunk, "repeats": len(times), "median_s": med, "steps_per_s": chunk / med,
         "ns_per_particle_step": med / chunk / n**3 * 1e9, "realtime_factor": chunk * sim.dt / med,
         "diverged": sim.diverged,
