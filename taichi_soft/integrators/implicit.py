@@ -24,10 +24,12 @@ step of springs and dampers (with the damper direction lagged by one step).
 Contact (the same for both, inside the iteration, see docs/implicit.md): the terrain is an
 inequality constraint d(x_i) >= 0. Iterates are projected onto the terrain surface; a projected
 particle is held on the surface (Newton filters its normal direction out of the linear system,
-Baraff & Witkin 1998 Sec. 5.3) until the gradient pulls it off (negative multiplier). After the
-solve, Coulomb friction bounded by the constraint impulse (the same cap as
-``Terrain.contact_accel``) and restitution on the pre-impact normal velocity are applied, and
-``Integrator._finish`` runs ``Terrain.respond`` and the divergence check as for every method.
+Baraff & Witkin 1998 Sec. 5.3) until the gradient pulls it off (negative multiplier). Coulomb
+friction is a term of the objective too: a smoothed |tangential displacement| weighted by mu times
+the lagged multiplier (the lagged dissipative potential of Li et al. 2020, IPC), so it is part of
+the same minimisation and cannot add energy. After the solve, restitution on the pre-impact
+normal velocity is applied, and ``Integrator._finish`` runs ``Terrain.respond`` and the
+divergence check as for every method.
 """
 
 import numpy as np
@@ -63,6 +65,13 @@ def _number_in(lo, hi, lo_open=False):
     return check
 
 
+# Options both implicit integrators take (contact handling inside the solve).
+_CONTACT_OPTIONS = {
+    "friction_velocity": (1e-3, _number_in(0.0, 1.0, lo_open=True),
+                          "a number in (0, 1] (sliding speed in m/s below which friction is smoothed)"),
+}
+
+
 @ti.data_oriented
 class ImplicitIntegrator(Integrator):
     """Shared machinery: predictor, objective, gradient, contact constraints and step end.
@@ -89,19 +98,24 @@ class ImplicitIntegrator(Integrator):
         self.normal = vec(n)  # terrain normal of a constrained particle
         self.trial_normal = vec(n)
         self.active = ti.field(ti.i32, n)  # 1 = held on the terrain surface in this step
+        self.lam = ti.field(float, n)  # lagged contact multiplier h^2 |F_n| of a held particle [kg m]
+        self.fric_hess = ti.Matrix.field(3, 3, float, n)  # Hessian block of its friction term [kg]
+        self.fric_eps = ti.field(float, ())  # friction smoothing length friction_velocity * h [m]
         self.trial_active = ti.field(ti.i32, n)
         self.spring_dir = vec(m)  # damper direction l_s at x_n (frozen over the step)
         self.spring_grad = vec(m)  # d(h^2 (E + D))/dx_a per spring [kg m]
         self.sc = ti.field(float, _N_SC)
         self.acc = ti.field(ti.f64, _N_ACC)
-        self.res_history = ti.field(float, RES_HISTORY)  # residual [m] after each iteration of the last step
+        self.res_history = ti.field(float, RES_HISTORY)  # residual [m/s^2] after each iteration of the last step
         self.n_history = ti.field(ti.i32, ())
         self.total_mass = float(np.sum(model.mass_np[model.mass_np > 0])) or 1.0
-        # Tolerance on the squared residual sum, from the option in metres (see _residual()).
+        # Tolerance on the squared residual sum, from the option in m/s^2 (see _residual()).
         self.tol2 = ti.field(float, ())
+        self.h2 = ti.field(float, ())  # h^2 of the current step [s^2]
         eps = np.finfo(model.real).eps
         self.roundoff = ti.field(float, ())  # relative objective noise the line search ignores
         self.roundoff[None] = 16 * eps
+        self.friction_velocity = float(self.options["friction_velocity"])
 
     # -- per-step phases (ti.func made of top-level loops) -------------------------------------
     @ti.func
@@ -113,6 +127,8 @@ class ImplicitIntegrator(Integrator):
     def _begin_step(self, x: ti.template(), v: ti.template(), dt):
         """Save (x_n, v_n), freeze damper directions, predict y and start from it, projected."""
         m = self.model
+        self.h2[None] = dt * dt
+        self.fric_eps[None] = self.friction_velocity * dt
         for s in range(m.n_springs):
             d = x[m.spring_ends[s][0]] - x[m.spring_ends[s][1]]
             length = d.norm()
@@ -125,6 +141,7 @@ class ImplicitIntegrator(Integrator):
                 yi += dt * dt * m.gravity[None]
             self.y[i] = yi
             self.active[i] = 0
+            self.lam[i] = 0.0
             self.normal[i] = ti.Vector([0.0, 1.0, 0.0], dt=float)
             if ti.static(self.terrain.has_contact):
                 if self._free(i):
@@ -136,11 +153,49 @@ class ImplicitIntegrator(Integrator):
             x[i] = yi
 
     @ti.func
+    def _friction(self, i, xi, nrm, lam):
+        """Friction term of a held particle at xi: (energy [kg m^2], gradient [kg m], Hessian [kg]).
+
+        mu lam f0(|u_t|), u_t = (I - N N^T)(xi - x_n) the tangential displacement over the step and
+        f0 the Huber function (|u_t| beyond eps = friction_velocity * h, quadratic below), so the
+        gradient is mu lam u_t/|u_t|: Coulomb's bound mu |F_n| times h^2 (lam = h^2 |F_n|, lagged).
+        Below eps the friction is a stiff tangential spring (a particle may creep at most at about
+        friction_velocity); beyond it the Hessian returned is that of a quadratic majorant.
+        """
+        tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+        u = tp @ (xi - self.x_prev[i])
+        sl = u.norm()
+        eps = self.fric_eps[None]
+        c = self.terrain.friction[None] * lam
+        energy = ti.cast(0.0, float)
+        grad = ti.Vector.zero(float, 3)
+        hess = ti.Matrix.zero(float, 3, 3)
+        if sl < eps:
+            energy = 0.5 * c * sl * sl / eps
+            grad = (c / eps) * u
+            hess = (c / eps) * tp
+        else:
+            t = u / sl
+            energy = c * (sl - 0.5 * eps)
+            grad = c * t
+            # The Hessian of the quadratic majorant c |u|^2 / (2 |u_t|) + c |u_t| / 2 rather than
+            # the exact c / |u_t| (T - t t^T): a Newton step then never carries the particle past
+            # the point where friction stops it (iteratively reweighted least squares), which
+            # the exact, zero curvature along t would; it stays PSD and continuous at eps.
+            hess = (c / sl) * tp
+        return energy, grad, hess
+
+    @ti.func
     def _gradient(self, x: ti.template(), dt, with_hessian: ti.template()):
         """grad g(x), the filtered residual ``rhs`` and its norm; releases pulling contacts.
 
         With ``with_hessian`` also stores each spring's 3x3 Hessian block (``spring_hess``) and
         each particle's inverse diagonal block (``precond``) for the Newton solve.
+
+        Friction: each held particle's multiplier lam = grad . N (h^2 times the normal force) is
+        updated here from the current iterate and used until the next gradient (lagged by one
+        iteration, as in IPC); the objective at x (``_F_CUR``) is corrected for the change, so the
+        line search compares like with like. A released particle loses its friction term.
         """
         m = self.model
         h = dt
@@ -168,17 +223,33 @@ class ImplicitIntegrator(Integrator):
                     gi -= self.spring_grad[-s - 1]
                 if ti.static(with_hessian):
                     diag += self.spring_hess[s if s >= 0 else -s - 1]
-            r = -gi
             nrm = self.normal[i]
             if not self._free(i):
                 gi = ti.Vector.zero(float, 3)
-                r = gi
             elif ti.static(self.terrain.has_contact):
+                lam_old = self.lam[i]
+                lam_new = ti.cast(0.0, float)
                 if self.active[i]:
-                    if gi.dot(nrm) < 0:
+                    lam_new = gi.dot(nrm)
+                    if lam_new < 0:
                         self.active[i] = 0  # the objective pulls it off the surface: release
-                    else:
-                        r -= nrm.dot(r) * nrm
+                        lam_new = 0.0
+                self.lam[i] = lam_new
+                fh = ti.Matrix.zero(float, 3, 3)
+                if lam_old > 0 or lam_new > 0:
+                    # The friction term's weight goes from lam_old to lam_new (the term is linear
+                    # in lam): correct the objective at x, then add the term's derivatives.
+                    f0, fg, fh1 = self._friction(i, x[i], nrm, 1.0)
+                    self.sc[_F_CUR] += (lam_new - lam_old) * f0
+                    gi += lam_new * fg
+                    fh = lam_new * fh1
+                self.fric_hess[i] = fh
+                if ti.static(with_hessian):
+                    diag += fh
+            r = -gi
+            if ti.static(self.terrain.has_contact):
+                if self.active[i]:
+                    r -= nrm.dot(r) * nrm
             self.grad[i] = gi
             self.rhs[i] = r
             self.sc[_RES2] += r.dot(r) * m.inv_mass[i]
@@ -227,6 +298,10 @@ class ImplicitIntegrator(Integrator):
             self.trial_normal[i] = nrm
             diff = xi - self.y[i]
             self.sc[_F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff) * ti.cast(self._free(i), float)
+            if ti.static(self.terrain.has_contact):
+                if self.lam[i] > 0:  # held at the last gradient, hence held here too
+                    fe, fg_unused, fh_unused = self._friction(i, xi, nrm, self.lam[i])
+                    self.sc[_F_TRIAL] += fe
             self.sc[_DEC] += self.grad[i].dot(xi - x[i])
         for s in range(m.n_springs):
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
@@ -246,24 +321,13 @@ class ImplicitIntegrator(Integrator):
 
     @ti.func
     def _end_step(self, x: ti.template(), v: ti.template(), dt, step):
-        """v = (x - x_n)/h, then friction and restitution for constrained particles; _finish."""
+        """v = (x - x_n)/h, then restitution for constrained particles; _finish."""
         for i in range(self.n):
             xn = x[i]
             vn = (xn - self.x_prev[i]) / dt
             if ti.static(self.terrain.has_contact):
                 if self.active[i] and self._free(i):
                     nrm = self.normal[i]
-                    # Constraint impulse: the multiplier lambda = grad . N [kg m] is h^2 times
-                    # the normal contact force, so the impulse over the step is lambda / h.
-                    lam = ti.max(self.grad[i].dot(nrm), 0.0)
-                    vt = vn - nrm.dot(vn) * nrm
-                    tn = vt.norm()
-                    if tn > 0:
-                        # Coulomb: friction impulse at most mu times the normal impulse; it may
-                        # stop the sliding, never reverse it (the cap of Terrain.contact_accel).
-                        dv = ti.min(tn, self.terrain.friction[None] * lam * self.model.inv_mass[i] / dt)
-                        vn -= (dv / tn) * vt
-                        xn -= (dt * dv / tn) * vt  # keep x_{n+1} = x_n + h v_{n+1}
                     # The constraint absorbed the approach velocity; hand Terrain.respond the
                     # pre-impact normal velocity so it reflects that with restitution, as it does
                     # for the explicit methods.
@@ -274,12 +338,14 @@ class ImplicitIntegrator(Integrator):
 
     @ti.func
     def _residual(self):
-        """Residual [m]: sqrt(sum_i |r_i|^2 / m_i / sum_i m_i), the RMS of M^{-1} r (mass-weighted).
+        """Residual [m/s^2]: sqrt(sum_i |r_i|^2 / m_i / sum_i m_i) / h^2, the mass-weighted RMS of
+        the unbalanced force per unit mass, M^{-1} r / h^2.
 
         r is the gradient with constraint-normal components removed, so it measures the KKT
-        residual; divided by h^2 it is the unbalanced force per unit mass.
+        residual. Measured as an acceleration it means the same at every step size (a tolerance
+        in metres would stop Newton before its first iteration at small h).
         """
-        return ti.sqrt(self.sc[_RES2] / self.total_mass)
+        return ti.sqrt(self.sc[_RES2] / self.total_mass) / self.h2[None]
 
     @ti.func
     def _record(self, k):
@@ -331,8 +397,8 @@ class ImplicitIntegrator(Integrator):
         self.acc[_A_RES] += ti.cast(self._residual(), ti.f64)
 
     def residual(self) -> float:
-        """Residual [m] of the last gradient evaluation (see ``_residual``)."""
-        return float(np.sqrt(max(float(self.sc[_RES2]), 0.0) / self.total_mass))
+        """Residual [m/s^2] of the last gradient evaluation (see ``_residual``)."""
+        return float(np.sqrt(max(float(self.sc[_RES2]), 0.0) / self.total_mass)) / float(self.h2[None])
 
     def objective(self, state, dt: float) -> float:
         """g(x) [kg m^2] at ``state.x`` for the step that started at the last ``begin`` (tests)."""
@@ -341,12 +407,12 @@ class ImplicitIntegrator(Integrator):
         return float(self.sc[_F_TRIAL])
 
     def residual_history(self) -> list[float]:
-        """Residual [m] after 0, 1, 2, ... iterations of the last step."""
+        """Residual [m/s^2] after 0, 1, 2, ... iterations of the last step."""
         return self.res_history.to_numpy()[: int(self.n_history[None])].tolist()
 
     # -- public API -------------------------------------------------------------------------
     def advance(self, state, dt: float, n_steps: int) -> int:
-        self.tol2[None] = self._tol() ** 2 * self.total_mass
+        self.tol2[None] = (self._tol() * dt * dt) ** 2 * self.total_mass
         self._prepare(dt)
         if self._serial() or n_steps <= 0 or self.diverged:
             return super().advance(state, dt, n_steps)
@@ -387,8 +453,9 @@ class ImplicitEuler(ImplicitIntegrator):
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
     OPTIONS = {
         **Integrator.OPTIONS,
+        **_CONTACT_OPTIONS,
         "newton_iters": (8, _int_at_least(1), "an integer >= 1 (most Newton iterations per step)"),
-        "newton_tol": (1e-4, _number_in(0.0, 1.0), "a number in [0, 1] (residual in m at which Newton stops)"),
+        "newton_tol": (0.1, _number_in(0.0, 1e3), "a number in [0, 1000] (residual in m/s^2 at which Newton stops)"),
         "cg_iters": (200, _int_at_least(1), "an integer >= 1 (most CG iterations per Newton iteration)"),
         "cg_tol": (1e-2, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1] (relative CG residual)"),
         "line_search_iters": (12, _int_at_least(0), "an integer >= 0 (most step halvings per Newton iteration)"),
@@ -422,6 +489,8 @@ class ImplicitEuler(ImplicitIntegrator):
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 s = m.adj_spring[e]
                 q += self.spring_hess[s if s >= 0 else -s - 1] @ (src[i] - src[m.adj_other[e]])
+            if ti.static(self.terrain.has_contact):
+                q += self.fric_hess[i] @ src[i]
             if not self._free(i):
                 q = ti.Vector.zero(float, 3)
             elif ti.static(self.terrain.has_contact):
@@ -508,7 +577,7 @@ class ImplicitEuler(ImplicitIntegrator):
 
     def stats(self) -> dict:
         """Averages per step since the last call (or reset): Newton and CG iterations, line-search
-        halvings, and the final residual [m] (see ``_residual``)."""
+        halvings, and the final residual [m/s^2] (see ``_residual``)."""
         a = self._take_stats()
         steps = max(a[_A_STEPS], 1.0)
         return {
@@ -517,7 +586,7 @@ class ImplicitEuler(ImplicitIntegrator):
             "cg_iterations_per_step": a[_A_CG] / steps,
             "cg_iterations_per_newton": a[_A_CG] / max(a[_A_OUTER], 1.0),
             "line_search_halvings_per_step": a[_A_LS] / steps,
-            "final_residual_m": a[_A_RES] / steps,
+            "final_residual_m_s2": a[_A_RES] / steps,
         }
 
 
@@ -530,8 +599,9 @@ class FastMassSpring(ImplicitIntegrator):
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
     OPTIONS = {
         **Integrator.OPTIONS,
+        **_CONTACT_OPTIONS,
         "iterations": (10, _int_at_least(1), "an integer >= 1 (local/global iterations per step)"),
-        "tol": (0.0, _number_in(0.0, 1.0), "a number in [0, 1] (residual in m at which iterations stop early; 0 = never)"),
+        "tol": (0.0, _number_in(0.0, 1e3), "a number in [0, 1000] (residual in m/s^2 at which iterations stop early; 0 = never)"),
         "global_solver": ("auto", lambda v: v in ("auto", "cholesky", "pcg"),
                           "auto, cholesky (PCG preconditioned by the prefactored skyline Cholesky) or pcg "
                           "(matrix-free, Jacobi preconditioner)"),
@@ -625,6 +695,8 @@ class FastMassSpring(ImplicitIntegrator):
             q = self.diag[i] * src[i]
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 q -= self.group_c[m.adj_group[e]] * src[m.adj_other[e]]
+            if ti.static(self.terrain.has_contact):
+                q += self.fric_hess[i] @ src[i]  # friction of held particles (not in the factorisation)
             dst[i] = self._filter(i, q)
 
     @ti.func
@@ -701,14 +773,14 @@ class FastMassSpring(ImplicitIntegrator):
 
     def stats(self) -> dict:
         """Averages per step since the last call (or reset): local/global iterations, CG
-        iterations (pcg global solver), final residual [m]; the global solver and how often the
+        iterations (pcg global solver), final residual [m/s^2]; the global solver and how often the
         matrix was factorised (or rebuilt) so far."""
         a = self._take_stats()
         steps = max(a[_A_STEPS], 1.0)
         out = {
             "steps": int(a[_A_STEPS]),
             "local_global_iterations_per_step": a[_A_OUTER] / steps,
-            "final_residual_m": a[_A_RES] / steps,
+            "final_residual_m_s2": a[_A_RES] / steps,
             "global_solver": self.global_solver,
             "factorizations": self.factorizations,
         }
