@@ -133,14 +133,25 @@ class SkylineCholesky:
     a ti.func), then ``factor()`` (kernel) and ``solve(b, x)`` (ti.func, serial).
     """
 
-    def __init__(self, n: int, pairs: np.ndarray):
-        """``pairs`` [m, 2]: the structurally non-zero off-diagonal entries (either order)."""
-        self.n = n
+    @staticmethod
+    def envelope_starts(n: int, pairs: np.ndarray) -> np.ndarray:
+        """First structurally non-zero column of each row of the lower triangle."""
         start = np.arange(n)
         if len(pairs):
             lo = np.minimum(pairs[:, 0], pairs[:, 1])
             hi = np.maximum(pairs[:, 0], pairs[:, 1])
             np.minimum.at(start, hi, lo)
+        return start
+
+    @classmethod
+    def envelope_size(cls, n: int, pairs: np.ndarray) -> int:
+        """Values the factor stores (its envelope), before allocating anything."""
+        return int(np.sum(np.arange(n) - cls.envelope_starts(n, pairs) + 1))
+
+    def __init__(self, n: int, pairs: np.ndarray):
+        """``pairs`` [m, 2]: the structurally non-zero off-diagonal entries (either order)."""
+        self.n = n
+        start = self.envelope_starts(n, pairs)
         lengths = np.arange(n) - start + 1
         offset = np.concatenate([[0], np.cumsum(lengths)])
         self.nnz = int(offset[-1])

@@ -50,6 +50,7 @@ _N_SC = 5
 # Slots of the stats accumulator ``acc`` (sums over steps since the last stats() call).
 _A_STEPS, _A_OUTER, _A_CG, _A_LS, _A_RES = range(5)
 _N_ACC = 5
+CHOLESKY_AUTO_MAX = 10_000_000  # largest factor envelope [values] global_solver = "auto" factorises
 RES_HISTORY = 64  # residuals of the last step's iterations kept for inspection and tests
 
 
@@ -614,9 +615,13 @@ class FastMassSpring(ImplicitIntegrator):
         o = self.options
         solver = o["global_solver"]
         if solver == "auto":
-            # The triangular solves are serial: the Cholesky wins on a CPU, PCG on a GPU.
+            # The triangular solves are serial: the Cholesky wins on a CPU, PCG on a GPU. Its
+            # envelope grows like N^(5/3) for a cube (N particles), factorising like N^(7/3): past
+            # CHOLESKY_AUTO_MAX values (the 20^3 cube has 6.4e6; the 40^3 one 2e8, 1.6 GB in f64
+            # and an hour-long factorisation) auto takes PCG.
             cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
-            solver = "cholesky" if cpu else "pcg"
+            small = SkylineCholesky.envelope_size(self.n, model.pairs_np) <= CHOLESKY_AUTO_MAX
+            solver = "cholesky" if cpu and small else "pcg"
         self.global_solver = solver
         self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
         self.diag = ti.field(float, self.n)  # diagonal of M + L (PCG's Jacobi preconditioner)
