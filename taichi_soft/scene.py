@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import UserError
+from .terrain import CONTACT_DEFAULTS
 from .terrain import DEFAULTS as TERRAIN_DEFAULTS
 from .terrain import KINDS as TERRAIN_KINDS
 
@@ -34,7 +35,6 @@ BODY_DEFAULTS = {
     "shear": dict(SPRING_DEFAULT),
     "bend": dict(SPRING_DEFAULT),
 }
-CONTACT_DEFAULTS = {"restitution": 0.8, "friction": 0.3, "epsilon": 0.01}
 RENDER_DEFAULTS = {"fps": 30, "resolution": [1280, 720], "camera": {}}
 CAMERA_KEYS = {"position", "lookat", "up", "fov"}
 TOP_KEYS = ("sim", "body", "terrain", "contact", "render", "solver")
@@ -225,6 +225,9 @@ def validate(raw: dict, integrator_names=None) -> dict:
     contact["restitution"] = float(r)
     contact["friction"] = _nonneg("contact.friction", contact["friction"])
     contact["epsilon"] = _positive("contact.epsilon", contact["epsilon"])
+    contact["bounce_threshold"] = _nonneg("contact.bounce_threshold", contact["bounce_threshold"])
+    if not isinstance(contact["impact_friction"], bool):
+        raise UserError(f"contact.impact_friction = {contact['impact_friction']!r}: must be true or false")
 
     render = _merge(RENDER_DEFAULTS, _table("render", raw.get("render", {})))
     _check_keys("render", render, RENDER_DEFAULTS)
