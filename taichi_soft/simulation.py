@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .collision import BodyContacts
 from .forces import Diagnostics
 from .integrators import REGISTRY, make_integrator
 from .model import BodySpec, ModelBuilder
@@ -77,7 +78,10 @@ class Simulation:
         self.integrator_name = integrator or data["sim"]["integrator"]
         if options is None:
             options = data.get("solver", {})
+        # Body-body contact only where there are bodies to collide: a one-body scene compiles none.
+        self.contacts = BodyContacts(self.model, self.terrain) if len(self.model.bodies) > 1 else None
         self.integrator = make_integrator(self.integrator_name, self.model, self.terrain, options)
+        self.integrator.contacts = self.contacts
         self.diagnostics = Diagnostics(self.model, self.terrain)
         self.state = self.model.state()
         self.dt = float(dt if dt is not None else data["sim"]["dt"])
@@ -105,6 +109,8 @@ class Simulation:
         self.state.set(self.model.x0_np, self.model.v0_np)
         self.terrain.reset(self.state.x)
         self.integrator.reset()
+        if self.contacts is not None:
+            self.contacts.reset()
         self.steps = 0
         self.steps_base = 0
         self.time_base = 0.0
@@ -116,6 +122,7 @@ class Simulation:
         if isinstance(integrator, str):
             integrator = make_integrator(integrator, self.model, self.terrain, self.scene.data.get("solver", {}))
         integrator.reset()
+        integrator.contacts = self.contacts
         self.integrator = integrator
         self.integrator_name = integrator.name
 
@@ -198,7 +205,7 @@ class Simulation:
             "diverged_at": result.diverged_at,
             "wall_seconds": result.wall_seconds,
             "steps_per_second": result.steps / result.wall_seconds if result.wall_seconds > 0 else None,
-            "integrator_stats": self.integrator.stats(),
+            "integrator_stats": {**self.integrator.stats(), **(self.contacts.stats() if self.contacts else {})},
             "final": {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in final.items()},
         }
 
