@@ -11,9 +11,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .collision import BodyContacts
+from .collision import BodyContacts, contact_radii
+from .errors import UserError
+from .lattice import rotation_matrix
 from .forces import Diagnostics
-from .integrators import REGISTRY, make_integrator
+from .integrators import make_integrator
 from .model import BodySpec, ModelBuilder
 from .scene import Scene
 from .terrain import make_terrain
@@ -88,6 +90,7 @@ class Simulation:
         self.steps = 0
         self.diverged_step: int | None = None
         self.reset()
+        check_start(self)
 
     # -- clock ---------------------------------------------------------------------------
     @property
@@ -210,8 +213,33 @@ class Simulation:
         }
 
 
-def integrator_names() -> list[str]:
-    return list(REGISTRY)
+def check_start(sim: Simulation):
+    """Refuse (``UserError``) a start state with a body inside the terrain or inside another body."""
+    d = sim.terrain.signed_distances(sim.state.x)
+    for b, body in enumerate(sim.model.bodies):
+        depth = -float(d[body.particles].min())
+        if depth > 0:
+            raise UserError(f"body.{b} starts {depth:.3g} m inside the terrain ({sim.terrain.kind}); "
+                            f"move it out (body.{b}.center)")
+    radii = contact_radii(sim.model)
+    x0 = sim.model.x0_np
+    for b, body in enumerate(sim.model.bodies):
+        for a in range(b):
+            depth = overlap_depth(sim.model.bodies[a].spec, x0[body.particles], radii[sim.model.bodies[a].particles][0],
+                                  radii[body.particles][0])
+            if depth > 0:
+                raise UserError(f"body.{b} starts {depth:.3g} m inside body.{a} (particles of different bodies "
+                                f"must start at least their contact distance apart); move them apart (body.{b}.center)")
+
+
+def overlap_depth(spec: BodySpec, points: np.ndarray, radius: float, point_radius: float) -> float:
+    """How deep [m] the deepest of ``points`` lies inside the box of body ``spec`` grown by the
+    contact distance (radius + point_radius); 0 if none is inside."""
+    rot = rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
+    q = (points - np.asarray(spec.center)) @ rot  # in the body's axes
+    half = 0.5 * spec.size * np.asarray(spec.initial_stretch) + radius + point_radius
+    depth = (half - np.abs(q)).min(axis=1)
+    return float(max(depth.max(), 0.0))
 
 
 def states_arrays(frames: list, real) -> dict:

@@ -84,6 +84,20 @@ class Terrain:
         """Geometry parameters as plain Python values (for renderers and summaries)."""
         return {}
 
+    def signed_distances(self, x) -> np.ndarray:
+        """Signed distance [m] of every particle at positions ``x`` (a vec3 field) to the surface,
+        negative inside the terrain (call after ``reset``: the bowl's answer depends on it)."""
+        out = np.full(self.n_particles, np.inf)
+        if self.has_contact:
+            self._k_distances(x, out)
+        return out
+
+    @ti.kernel
+    def _k_distances(self, x: ti.template(), out: ti.types.ndarray()):
+        for i in range(self.n_particles):
+            d, _ = self.query(i, x[i])
+            out[i] = d
+
     @ti.func
     def post_step(self, i, x):
         """Per-particle bookkeeping after a step (the bowl tracks which side a particle is on)."""
