@@ -87,7 +87,7 @@ def test_contact_radius_is_half_the_spacing(make_sim):
 
 
 @pytest.mark.parametrize("sets,message", [
-    (["body.0.center=[0,-5,0]"], "body.0 starts 6"),  # default plane scene: lowest corner 6 m under y = -1
+    (["body.0.center=[0,-5,0]"], "m inside the terrain (plane)"),
     (["--scene", "three_cubes", "body.1.center=[-4,6,0]"], "body.1 starts 1.74 m inside body.0"),
 ])
 def test_start_inside_terrain_or_another_body_is_refused(cli, tmp_path, sets, message):
