@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from taichi_soft.scene import apply_override, load_scene, parse_value
+from taichi_soft.scene import apply_overrides, load_scene, parse_value
 from taichi_soft.errors import UserError
 from taichi_soft.simulation import frame_steps
 
@@ -133,7 +133,7 @@ def test_set_nested_body_keys():
 
 def test_override_rejects_bad_index():
     with pytest.raises(UserError):
-        apply_override({"body": [{}]}, "body.x.n=3")
+        apply_overrides({"body": [{}]}, ["body.x.n=3"])
 
 
 def test_every_shipped_scene_validates():
