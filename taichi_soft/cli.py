@@ -225,6 +225,12 @@ def cmd_run(args) -> int:
         step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
     try:
         result = sim.run(duration, fps, on_frame=recorder, record=states_path is not None, progress=step_progress)
+    except OutputError as e:  # the video or frames failed part-way (full disk, encoder error): stop there
+        recorder.abort()
+        others = [f"--{name} {path}" for name, path in (("summary", summary_path), ("states", states_path)) if path]
+        raise OutputError(f"{e}; the run stopped at t = {sim.time:.3f} s" +
+                          (f", so {' and '.join(others)} {'was' if len(others) == 1 else 'were'} not written either"
+                           if others else "")) from None
     except BaseException:
         if recorder is not None:
             recorder.abort()

@@ -48,6 +48,7 @@ def test_divergence_exit_3_and_outputs(cli, tmp_path):
     assert r.returncode == 3
     assert "diverged at t =" in r.stderr and "explicit_euler" in r.stderr and "--dt" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+    assert f"summary: {summary}" in r.stdout and f"states: {states}" in r.stdout
     s = json.loads(summary.read_text())
     assert s["diverged"] is True and 0 < s["diverged_at"] < 2
     d = np.load(states)
