@@ -349,7 +349,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    """``bench accuracy|stability|speed|report``: measure and write CSV, PNG and Markdown (docs/benchmarks.md)."""
+    """``bench accuracy|stability|speed|report``: measure and write CSV, PNG and Markdown (docs/benchmarks/REPORT.md)."""
     import time
 
     from . import runtime

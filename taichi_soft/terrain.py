@@ -2,7 +2,7 @@
 
 Each terrain class compiles only its own geometry (a scene with a plane compiles no sphere
 code): kernels call ``terrain.query(i, x)``, which is a ``ti.func`` of the concrete class.
-Contact model (after the seed, see REFERENCE.md):
+Contact model (after the seed, the course assignment this project grew from; see README "Contact"):
 
 * detection: signed distance d < epsilon to the surface, with the normal N pointing to the side
   the particle belongs on;

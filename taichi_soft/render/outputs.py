@@ -108,6 +108,14 @@ class StagedDir:
     def file(self, index: int) -> Path:
         return self.staging / f"{self.prefix}_{index:05d}{self.suffix}"
 
+    def save(self, index: int, write) -> None:
+        """``write(path)`` the file of ``index``; a failed write (full disk...) raises ``OutputError``."""
+        path = self.file(index)
+        try:
+            write(path)
+        except OSError as e:
+            raise OutputError(f"{self.target} was not written: {path.name}: {e.strerror or e}") from None
+
     def commit(self) -> Path:
         self.target.mkdir(parents=True, exist_ok=True)
         written = set()
@@ -133,11 +141,8 @@ class PngFrames:
     def add(self, frame: np.ndarray, index: int):
         from PIL import Image
 
-        path = self.dir.file(index)
-        try:
-            Image.fromarray(frame).save(path, compress_level=1)  # fast; PNG stays lossless
-        except OSError as e:
-            raise OutputError(f"frames {self.dir.target} were not written: {path.name}: {e.strerror or e}") from None
+        # compress_level 1: fast; PNG stays lossless
+        self.dir.save(index, lambda path: Image.fromarray(frame).save(path, compress_level=1))
 
     def commit(self) -> Path:
         return self.dir.commit()
