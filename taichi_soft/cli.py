@@ -328,7 +328,7 @@ def cmd_compare(args) -> int:
 
     comparison = Comparison(scene, integrators, render_options)
     n_frames = frame_count(scene.sim["duration"], comparison.dt, render_options.fps)
-    bar = Progress(n_frames, f"{scene.name}: {', '.join(integrators)}")
+    bar = Progress(n_frames, f"{scene.label}: {', '.join(integrators)}")
     try:
         results = comparison.run(scene.sim["duration"],
                                  progress=lambda k, t: bar.update(k, f"frame {k}/{n_frames} t={t:6.3f}s"))
