@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from .errors import UserError
+from .memory import check_fits
 from .outfiles import write_atomic
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 2, 3
@@ -194,6 +195,7 @@ def cmd_run(args) -> int:
     from .simulation import Simulation, states_arrays
 
     scene = load_scene_from_args(args)
+    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
     render_options = render_options_from_args(args, scene)
@@ -275,6 +277,7 @@ def cmd_compare(args) -> int:
 
     integrators = parse_integrator_list(args.integrators)
     scene = load_scene_from_args(args)
+    check_fits(scene.data, integrators, args.precision, args.arch)
     if args.video is None and args.frames is None:
         args.video = f"out/compare-{scene.name}.mp4"
     render_options = render_options_from_args(args, scene)
@@ -360,6 +363,7 @@ def cmd_bench(args) -> int:
 def cmd_demo(args) -> int:
     """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
     scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
+    check_fits(scene.data, None, args.precision, args.arch)
     screenshot = check_output_path(args.screenshot, "--screenshot", [".png"])
     start_taichi(args)
     from .demo.app import run_demo

@@ -91,6 +91,28 @@ def _fill_springs(ends: ti.template(), rest: ti.template(), group: ti.template()
         group[s0 + s] = g0 + kind[q]
 
 
+def envelope_size(n: int) -> int:
+    """Values of the skyline (envelope) Cholesky factor of an n^3 lattice's spring graph in
+    lattice order: the sum over rows of (row index - first neighbour's index + 1).
+
+    Computed per (j, k) plane for the three kinds of layer i = 0, 1, >= 2 (a layer's rows only
+    differ by which neighbours two layers back exist), so it costs O(n^2) even for n = 200.
+    """
+    j, k = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    total = 0
+    for i, layers in ((0, 1), (1, 1 if n > 1 else 0), (2, max(n - 2, 0))):
+        if layers == 0:
+            continue
+        width = np.zeros((n, n), dtype=np.int64)  # row index - first column, per (j, k)
+        for _, off in SPRING_OFFSETS:  # every offset steps to a higher index: p - off is below p
+            if i - off[0] < 0:
+                continue
+            ok = (j - off[1] >= 0) & (j - off[1] < n) & (k - off[2] >= 0) & (k - off[2] < n)
+            np.maximum(width, np.where(ok, (off[0] * n + off[1]) * n + off[2], 0), out=width)
+        total += layers * int((width + 1).sum())
+    return total
+
+
 def lattice_points(n: int, size: float) -> np.ndarray:
     """Rest positions [m] of an n^3 lattice of edge ``size`` centred on the origin, shape [n^3, 3].
 
