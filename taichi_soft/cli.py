@@ -308,7 +308,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    """``bench accuracy|stability|speed|report``: measure and write CSV, PNG and Markdown (docs/benchmarks.md)."""
+    """``bench accuracy|stability|speed|memory|report``: measure and write CSV, PNG and Markdown (docs/benchmarks.md)."""
     import time
 
     from . import runtime
@@ -333,7 +333,7 @@ def cmd_bench(args) -> int:
         bar.update(done, what[:60], force=True)
 
     start = time.perf_counter()
-    acc = stab = speed = None
+    acc = stab = speed = mem = None
     files = []
     if args.study in ("accuracy", "report"):
         acc = report.run_accuracy(args.quick, progress)
@@ -344,10 +344,13 @@ def cmd_bench(args) -> int:
     if args.study in ("speed", "report") and not any(r and r["interrupted"] for r in (acc, stab)):
         speed = report.run_speed(args.quick, progress)
         files += report.write_speed(speed, out_dir)
+    if args.study in ("memory", "report") and not any(r and r["interrupted"] for r in (acc, stab, speed)):
+        mem = report.run_memory(args.quick, progress)
+        files += report.write_memory(mem, out_dir)
     bar.close()
     command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
     name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
-    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start)
+    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem)
     if name != "REPORT.md":
         md = md.rename(out_dir / name)
     files.append(md.name)
@@ -356,7 +359,7 @@ def cmd_bench(args) -> int:
             orders = ", ".join(f"{k} {v:.2f}" for k, v in data["orders"].items() if v is not None)
             print(f"fitted orders ({case}): {orders}")
     print(f"wrote {len(files)} files to {out_dir}: {md}")
-    interrupted = any(r and r["interrupted"] for r in (acc, stab, speed))
+    interrupted = any(r and r["interrupted"] for r in (acc, stab, speed, mem))
     return 130 if interrupted else EXIT_OK
 
 
@@ -397,8 +400,8 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
     p_demo.set_defaults(func=cmd_demo)
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "report", "speed-worker"],
-                         help="what to measure; report runs all three and writes REPORT.md")
+    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "memory", "report", "speed-worker"],
+                         help="what to measure; report runs all four and writes REPORT.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     p_bench.add_argument("--arch", default="cpu", help=argparse.SUPPRESS)
