@@ -13,6 +13,7 @@ Sizes: n = 10, 20, 40, 80 and the largest n (up to the scene limit) whose estima
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -67,15 +68,17 @@ def scene_sets(n: int, integrator: str) -> list[str]:
     return [f"body.0.n={n}"] + _FEW_ITERATIONS.get(integrator, [])
 
 
-def measure_peak(n: int, integrator: str, precision: str = "f64", arch: str = "cpu", timeout: float = 1800) -> dict:
-    """Peak resident bytes (and CUDA device bytes) of a one-step CLI run in a fresh process."""
+def measure_peak(n: int, integrator: str, precision: str = "f64", arch: str = "cpu", timeout: float = 1800,
+                 env: dict | None = None) -> dict:
+    """Peak resident bytes (and CUDA device bytes) of a one-step CLI run in a fresh process
+    (``env``: extra environment variables for it)."""
     sets = scene_sets(n, integrator)
     argv = ["run", "--scene", "plane", "--integrator", integrator, "--precision", precision, "--arch", arch,
             "--dt", "0.001", "--duration", "0.001"]
     for s in sets:
         argv += ["--set", s]
     proc = subprocess.run([sys.executable, "-c", _WORKER, str(ROOT), json.dumps({"argv": argv, "arch": arch})],
-                          capture_output=True, text=True, cwd=ROOT, timeout=timeout)
+                          capture_output=True, text=True, cwd=ROOT, timeout=timeout, env={**os.environ, **(env or {})})
     lines = proc.stdout.strip().splitlines()
     if proc.returncode != 0 or not lines:
         raise RuntimeError(f"memory run n={n} {integrator} {precision} failed: {proc.stderr.strip()[-500:]}")
