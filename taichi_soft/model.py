@@ -231,8 +231,8 @@ class Model:
 
         # Kernel arguments in the run's precision: backends without f64 (Vulkan, Metal) take them.
         self._set_mass(self.mass_np.astype(self.real, copy=False))
-        self._set_groups(np.asarray(group_k, dtype=self.real), np.asarray(group_kd, dtype=self.real),
-                         len(group_k), ti.Vector([float(g) for g in gravity]))
+        self._set_groups(np.asarray(group_k, dtype=self.real), np.asarray(group_kd, dtype=self.real), len(group_k))
+        self.set_gravity(gravity)
         self.mass_version = 0  # bumped by set_particle_mass
 
     @ti.kernel
@@ -243,12 +243,10 @@ class Model:
             self.inv_mass[i] = 1.0 / mi if mi > 0 else 0.0
 
     @ti.kernel
-    def _set_groups(self, k: ti.types.ndarray(ndim=1), kd: ti.types.ndarray(ndim=1), count: ti.i32,
-                    gravity: ti.types.vector(3, float)):
+    def _set_groups(self, k: ti.types.ndarray(ndim=1), kd: ti.types.ndarray(ndim=1), count: ti.i32):
         for g in range(count):
             self.group_k[g] = ti.cast(k[g], float)
             self.group_kd[g] = ti.cast(kd[g], float)
-        self.gravity[None] = gravity
 
     @ti.func
     def _adjacency_key(self, code):

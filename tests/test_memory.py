@@ -65,14 +65,14 @@ def test_field_table_matches_allocated_fields():
         assert abs(sum(_field_bytes(f) for f in scaling) - est["fields"]) <= 64, (name, mode)  # n + 1 sized offsets
 
 
-def test_estimate_agrees_with_measured_peak(tmp_path):
+def test_estimate_agrees_with_measured_peak():
     """Two sizes, each a fresh one-step CLI run reporting its own peak (VmHWM), within 20 %; and
     the growth between them (the per-particle part of the model, free of the process base)."""
     from taichi_soft.bench.memory import measure_peak
 
-    # Both runs compile their kernels (a private, empty offline cache): the same process base.
-    env = {"TI_OFFLINE_CACHE_FILE_PATH": str(tmp_path / "ticache")}
-    rows = [measure_peak(n, "semi_implicit_euler", "f64", env=env) for n in (4, 40)]
+    # n = 60: the growth (about 230 MB) dwarfs the difference between a run that compiles its
+    # kernels and one that finds them in the offline cache (under 20 MB for this integrator).
+    rows = [measure_peak(n, "semi_implicit_euler", "f64") for n in (4, 60)]
     for r in rows:
         assert r["peak_bytes"] == pytest.approx(r["estimate_host_bytes"], rel=0.2), r
     small, big = rows
