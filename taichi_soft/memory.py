@@ -125,6 +125,19 @@ def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
     return nnz if solver == "cholesky" or nnz <= CHOLESKY_AUTO_MAX else 0
 
 
+def _envelope_transient(scene_data: dict, integrator: str, n_p: int, n_s: int, real: int) -> int:
+    """Host bytes above the fields while fast_mass_spring sizes its Cholesky envelope (CPU backend).
+
+    It downloads the spring ends (8 bytes per spring) and takes their min and max (4 + 4), with
+    per-particle starts (16 bytes), after the implicit base fields are allocated and before its
+    own buffers and the state are: the peak is the larger of the two moments.
+    """
+    if integrator != "fast_mass_spring" or scene_data.get("solver", {}).get("global_solver", "auto") == "pcg":
+        return 0
+    later = (FIELDS["fast_mass_spring"] + FIELDS["state"]).bytes(n_p, n_s, real)
+    return max(0, 16 * n_s + 16 * n_p - later)
+
+
 def field_counts(integrator: str, serial: bool, cholesky: bool = False) -> FieldCounts:
     """Per-particle and per-spring field entries of the model, state and ``integrator``
     (an unknown name counts as the largest explicit one); ``cholesky``: with the factor's
@@ -175,7 +188,7 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
         host += 2 * frames * n_p * 2 * 3 * real  # the frames kept, and their stacked copy when written
     device = 0
     if arch == "cpu":
-        host += fields
+        host += fields + max(_envelope_transient(scene_data, name, n_p, n_s, real) for name in names)
     else:
         host += GPU_HOST_EXTRA_BYTES
         device = GPU_DEVICE_BASE_BYTES + fields
