@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from .errors import OutputError, Terminated, UserError
+from .memory import check_fits
 from .outfiles import probe_writable, write_atomic
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT = 0, 2, 3, 4
@@ -202,6 +203,7 @@ def cmd_run(args) -> int:
     from .simulation import Simulation, states_arrays
 
     scene = load_scene_from_args(args)
+    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
     render_options = render_options_from_args(args, scene)
@@ -319,6 +321,7 @@ def cmd_compare(args) -> int:
 
     integrators = parse_integrator_list(args.integrators)
     scene = load_scene_from_args(args)
+    check_fits(scene.data, integrators, args.precision, args.arch)
     if args.video is None and args.frames is None:
         args.video = f"out/compare-{scene.name}.mp4"
     render_options = render_options_from_args(args, scene)
@@ -349,7 +352,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    """``bench accuracy|stability|speed|report``: measure and write CSV, PNG and Markdown (docs/benchmarks/REPORT.md)."""
+    """``bench accuracy|stability|speed|memory|report``: measure and write CSV, PNG and Markdown (docs/benchmarks/REPORT.md)."""
     import time
 
     from . import runtime
@@ -374,7 +377,7 @@ def cmd_bench(args) -> int:
         bar.update(done, what[:60], force=True)
 
     start = time.perf_counter()
-    acc = stab = speed = None
+    acc = stab = speed = mem = None
     files = []
     if args.study in ("accuracy", "report"):
         acc = report.run_accuracy(args.quick, progress)
@@ -385,10 +388,13 @@ def cmd_bench(args) -> int:
     if args.study in ("speed", "report") and not any(r and r["interrupted"] for r in (acc, stab)):
         speed = report.run_speed(args.quick, progress)
         files += report.write_speed(speed, out_dir)
+    if args.study in ("memory", "report") and not any(r and r["interrupted"] for r in (acc, stab, speed)):
+        mem = report.run_memory(args.quick, progress)
+        files += report.write_memory(mem, out_dir)
     bar.close()
     command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
     name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
-    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start)
+    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem)
     if name != "REPORT.md":
         md = md.rename(out_dir / name)
     files.append(md.name)
@@ -397,13 +403,14 @@ def cmd_bench(args) -> int:
             orders = ", ".join(f"{k} {v:.2f}" for k, v in data["orders"].items() if v is not None)
             print(f"fitted orders ({case}): {orders}")
     print(f"wrote {len(files)} files to {out_dir}: {md}")
-    interrupted = any(r and r["interrupted"] for r in (acc, stab, speed))
+    interrupted = any(r and r["interrupted"] for r in (acc, stab, speed, mem))
     return 130 if interrupted else EXIT_OK
 
 
 def cmd_demo(args) -> int:
     """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
     scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
+    check_fits(scene.data, None, args.precision, args.arch)
     screenshot = check_output_path(args.screenshot, "--screenshot", [".png"])
     start_taichi(args)
     from .demo.app import run_demo
@@ -437,8 +444,8 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
     p_demo.set_defaults(func=cmd_demo)
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "report", "speed-worker"],
-                         help="what to measure; report runs all three and writes REPORT.md")
+    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "memory", "report", "speed-worker"],
+                         help="what to measure; report runs all four and writes REPORT.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     p_bench.add_argument("--arch", default="cpu", help=argparse.SUPPRESS)
