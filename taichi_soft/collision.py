@@ -34,6 +34,17 @@ VELOCITY_ITERATIONS = 4
 _COUNT, _VELOCITY, _POSITION = 0, 1, 2
 
 
+def table_size(n_particles: int) -> int:
+    """Hash buckets for ``n_particles``: a power of two, at least 2 per particle."""
+    return 1 << max(int(np.ceil(np.log2(2 * n_particles))), 4)
+
+
+def field_bytes(n_particles: int, real_bytes: int) -> int:
+    """Bytes of a ``BodyContacts``'s fields (for the memory model): per bucket a count and
+    ``CELL_CAPACITY`` slots; per particle body, contact count (i32), radius and dx, dv (reals)."""
+    return table_size(n_particles) * (1 + CELL_CAPACITY) * 4 + n_particles * (2 * 4 + 7 * real_bytes)
+
+
 def contact_radii(model) -> np.ndarray:
     """Contact radius [m] of every particle: half its body's lattice spacing."""
     r = np.zeros(model.n_particles)
@@ -54,7 +65,7 @@ class BodyContacts:
         n = model.n_particles
         self.n = n
         radii = contact_radii(model)
-        self.table_size = 1 << max(int(np.ceil(np.log2(2 * n))), 4)  # power of two, >= 2n buckets
+        self.table_size = table_size(n)
         self.body = ti.field(ti.i32, n)
         self.radius = ti.field(float, n)
         self.cell = ti.field(float, ())  # hash cell edge [m]: the largest contact distance
