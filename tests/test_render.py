@@ -154,6 +154,27 @@ def test_frame_shows_bodies_and_terrain(renderer, name):
     np.testing.assert_array_equal(renderer.render(view, cam), first)  # the same state draws the same frame
 
 
+def test_terrain_is_drawn_from_the_live_terrain(renderer):
+    """A geometry changed at run time (``set_geometry``) is drawn: the renderer reads the
+    terrain object the simulation collides with, not the scene file."""
+    from taichi_soft.render.renderer import BACKGROUND, SimulationView
+    from taichi_soft.simulation import Simulation
+
+    scene = small_scene("sphere")
+    sim = Simulation(scene)
+    view = SimulationView(sim)
+    cam = scene_camera(scene.data, renderer.aspect)
+    t = scene.data["terrain"]
+    low = np.add(t["center"], [0.0, -0.6 * t["radius"], 0.0])  # inside the ball, below the cube
+    col, row = (int(v) for v in project([low], cam, 160, 96)[0])
+    background = np.round(np.array(BACKGROUND) * 255).astype(int)
+    before = renderer.render(view, cam)[row, col].astype(int)
+    assert np.abs(before - background).max() > 10 and saturation(before) < 70, before  # the ball
+    sim.terrain.set_geometry(t["center"], 0.3 * t["radius"])
+    after = renderer.render(view, cam)[row, col].astype(int)
+    assert np.abs(after - background).max() <= 2, after  # the shrunken ball no longer covers it
+
+
 def check_bodies_and_terrain(img, scene, cam):
     from taichi_soft.render.meshes import BODY_COLORS
     from taichi_soft.render.renderer import BACKGROUND

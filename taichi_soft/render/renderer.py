@@ -191,8 +191,10 @@ class SimulationView:
             draw_mesh(scene, self._identity, s.vertices, s.indices, s.normals, self.body_colors)
         for name, (first, count) in self.spring_ranges.items():
             if name in self._show_springs and count:
+                # vertex_count only matters for unindexed lines; GGUI prints a warning every frame
+                # when it is odd (its default: the particle count), so pass an even one.
                 scene.lines(self.points, width=1.0, indices=self.spring_indices, color=SPRING_COLORS[name],
-                            index_offset=first, index_count=count)
+                            index_offset=first, index_count=count, vertex_count=self.points.shape[0] // 2 * 2)
         if self.show_particles:
             scene.particles(self.points, radius=self.particle_radius, color=PARTICLE_COLOR)
 
