@@ -169,11 +169,11 @@ def check_every_control(s: Session) -> dict:
     def space_plays():
         s.press(" ")
         assert not ctl.settings.paused, "Space did not start the run"
-        for _ in range(200):
-            if ctl.sim.time >= 0.05:
+        for _ in range(200):  # a few frames that stepped: the plot has history to keep
+            if ctl.sim.time >= 0.05 and len(ctl.history.t) >= 4:
                 break
             s.frames(1)
-        assert ctl.sim.time >= 0.05, ctl.sim.time
+        assert ctl.sim.time >= 0.05 and len(ctl.history.t) >= 4, (ctl.sim.time, ctl.history.t)
 
     def pause_keeps_history():
         s.press(" ")
