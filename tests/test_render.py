@@ -267,6 +267,20 @@ def test_overlay_shows_time_and_changes_with_it():
     assert overlay.value_range([600, 2000, 8000], "N/m") == "600..8000 N/m"
 
 
+def test_compare_tile_labels_scale_with_the_tile():
+    """Sub-labels of a 640 x 360 mosaic of four tiles were 8-px type (about 6 px of glyph)."""
+    subtitle = "dt = 0.002 s | t = 1.500 s | E = 42760.5 J"
+    sizes = {(w, h): overlay.title_sizes(h, w, "semi_implicit_euler", subtitle) for w, h in ((320, 180), (640, 360))}
+    assert sizes[(320, 180)][1] >= 10 and sizes[(640, 360)][1] > sizes[(320, 180)][1]
+    for (w, h), (big, small) in sizes.items():
+        assert overlay._text_size(subtitle, overlay.font(small))[0] <= 0.94 * w
+        assert overlay._text_size("semi_implicit_euler", overlay.font(big, "bold"))[0] <= 0.94 * w
+    img = np.full((180, 320, 3), 200, np.uint8)
+    overlay.draw_title(img, "semi_implicit_euler", subtitle)
+    rows = np.flatnonzero((img.max(axis=-1) > 230).any(axis=1))  # white text rows
+    assert rows.min() > 100 and rows.max() < 180
+
+
 # -- command line ---------------------------------------------------------------------------------
 def test_run_writes_video_and_frames(vulkan, tmp_path):
     import imageio.v3 as iio
