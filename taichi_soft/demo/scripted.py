@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..render.window import window_rgb
-from .app import DRAW_KEYS, PANEL_W, PANEL_X
+from .app import DRAW_KEYS, PANEL_X
 
 CAMERA_KEYS = ("w", "a", "s", "d", "q", "e")
 
