@@ -416,7 +416,7 @@ def cmd_demo(args) -> int:
     from .demo.app import run_demo
 
     run_demo(args.scene, args.set, args.integrator, args.dt, tuple(scene.data["render"]["resolution"]),
-             frames=args.frames, screenshot=screenshot)
+             frames=args.frames, screenshot=screenshot, paused=args.paused)
     return EXIT_OK
 
 
@@ -439,6 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_args(p_demo)
     p_demo.add_argument("--resolution", type=_resolution_arg, metavar="WxH", default=[1280, 800],
                         help="window size in pixels (default: 1280x800)")
+    p_demo.add_argument("--paused", action="store_true", help="start paused: Space plays (R also resets paused)")
     # Hidden, for tests and docs: render N frames, save the window to PATH, exit.
     p_demo.add_argument("--frames", type=int, help=argparse.SUPPRESS)
     p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
