@@ -116,7 +116,7 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
     g.add_argument("--springs", action="store_true", help="draw springs: stretch blue, shear green, bend magenta")
     g.add_argument("--no-surface", dest="surface", action="store_false", help="do not draw the bodies' surfaces")
     g.add_argument("--follow", action=argparse.BooleanOptionalAction, default=None,
-                   help="camera tracks the bodies' centre of mass (default: only on tilted_plane, where they slide far)")
+                   help="camera tracks the bodies' centre of mass (default: on tilted_plane and sphere, where they travel far)")
     g.add_argument("--no-overlay", dest="overlay", action="store_false", help="leave the text overlay out of frames")
     if mesh_export:
         g.add_argument("--export-mesh", metavar="DIR",

@@ -8,7 +8,7 @@ panel buttons through the X server (``xinput.XInput``, XTest), checking after ea
 the demo's state; screenshots and a recording go to ``out/`` under the working directory. With
 ``--minutes M`` it then keeps pressing random keys and clicking random buttons for M minutes (a
 soak test). Prints one JSON object (``checks``: control -> "ok" or what went wrong; ``actions``:
-soak actions done) and exits 0 only if every check passed. Needs an X display (Xvfb will do) in
+the soak's counts of keys, clicks, recordings and switches) and exits 0 only if every check passed. Needs an X display (Xvfb will do) in
 which the window is the only one, at the top-left corner.
 """
 from __future__ import annotations
@@ -297,37 +297,42 @@ def check_every_control(s: Session) -> dict:
     return results, escape_quits
 
 
-def soak(s: Session, minutes: float, seed: int = 0) -> int:
-    """Random keys and button clicks for ``minutes``; returns the number of actions taken.
+def soak(s: Session, minutes: float, seed: int = 0) -> dict:
+    """Random keys and button clicks for ``minutes``; returns how many of each kind were done
+    (``keys``, ``clicks``, ``recordings`` toggled, and the ``integrators`` and ``terrains``
+    switched to).
 
     Raises if the window closes or the state stops being finite without a divergence message.
     """
     rng = random.Random(seed)
     keys = [" ", "n", "r", "m", "c", "p", *DRAW_KEYS, *CAMERA_KEYS]
     end = time.monotonic() + 60 * minutes
-    actions = 0
+    done = {"keys": 0, "clicks": 0, "recordings": 0, "integrators": 0, "terrains": 0}
     bands = s.buttons()
-    recording_toggles = 0
     while time.monotonic() < end:
         roll = rng.random()
+        before = (s.ctl.settings.integrator, s.ctl.settings.terrain)
         if roll < 0.55:
             s.press(rng.choice(keys), frames=rng.randint(1, 5))
+            done["keys"] += 1
         elif roll < 0.9:
             # Any button but the last (recording: toggled below, rarely, so files stay small).
             s.click(rng.choice(bands[:-1]), frames=rng.randint(1, 5))
             bands = s.buttons()  # a terrain switch or a label change may move them
+            done["clicks"] += 1
         else:
             s.press("v", frames=rng.randint(5, 20))
-            recording_toggles += 1
-        actions += 1
+            done["recordings"] += 1
+        done["integrators"] += s.ctl.settings.integrator != before[0]
+        done["terrains"] += s.ctl.settings.terrain != before[1]
         if not s.app.window.running:
-            raise AssertionError(f"the window closed after {actions} actions")
+            raise AssertionError(f"the window closed after {done}")
         m = s.ctl.last_measures
         if m is not None and not s.ctl.message:
             assert np.isfinite(m["total_energy"]), "non-finite energy without a divergence message"
     if s.app.recording is not None:
         s.press("v")
-    return actions
+    return done
 
 
 def main(argv=None) -> int:
@@ -351,7 +356,7 @@ def main(argv=None) -> int:
     app = DemoApp(DemoController(args.scene, args.set, "semi_implicit_euler", paused=True), size, window)
     xin = XInput()
     session = Session(app, xin)
-    report = {"checks": {}, "actions": 0}
+    report = {"checks": {}, "actions": {}}
     try:
         report["checks"], escape = check_every_control(session)
         if args.minutes > 0 and app.window.running:
