@@ -181,7 +181,7 @@ def run_gallery(plan: Plan, executor, scene_dts: dict):
         if res is not None:
             write_atomic(plan.out / name, lambda tmp, b=res["video"]: Path(tmp).write_bytes(b))
             res = {k: v for k, v in res.items() if k != "video"}
-        cells[task.key] = {"video": name, "dt": task.kwargs["dt"], "result": res,
+        cells[task.key] = {"video": name, "result": res,
                            "error": outcome.failed.get(task.key) or (None if res else "not run (interrupted)")}
     meta = {"terrains": plan.terrains, "integrators": plan.integrators, "duration": plan.duration,
             "resolution": list(plan.resolution), "sets": plan.sets, "cells": cells}

@@ -183,12 +183,14 @@ class DaskExecutor:
 
     @staticmethod
     def wait(futures, timeout):
-        from distributed import wait
-
-        try:
-            return wait(list(futures), timeout=timeout, return_when="FIRST_COMPLETED").done
-        except TimeoutError:
-            return set()
+        # Polls the futures' states (``distributed.wait`` wants a default client, and this one
+        # is not made the process-wide default).
+        deadline = time.monotonic() + timeout
+        while True:
+            done = {f for f in futures if f.done()}
+            if done or time.monotonic() >= deadline:
+                return done
+            time.sleep(0.02)
 
     @staticmethod
     def result(future):
