@@ -32,6 +32,7 @@ import tempfile
 import threading
 import time
 import traceback
+import types
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -179,7 +180,10 @@ class DaskExecutor:
 
     def submit(self, task: Task, attempt: int):
         # pure=False and a per-attempt key: a retry is a new task, never the cached failure.
-        return self.client.submit(run_attempt, task, pure=False, key=f"taichi-soft-{task.key}-{attempt}-{time.time_ns()}")
+        # The task travels as bytes and the entry point by value: the scheduler unpickles the
+        # graph and need not have taichi_soft installed; only the workers import it.
+        return self.client.submit(_DASK_ENTRY, pickle.dumps(task), pure=False,
+                                  key=f"taichi-soft-{task.key}-{attempt}-{time.time_ns()}")
 
     @staticmethod
     def wait(futures, timeout):
@@ -205,6 +209,25 @@ class DaskExecutor:
 
     def close(self):
         self.client.close()
+
+
+def _dask_entry(spec: bytes):
+    """On a Dask worker: unpickle the task and run one attempt from that machine's checkout."""
+    import pickle
+
+    from taichi_soft.tasks import run_attempt  # the worker's own checkout (PYTHONPATH, docs/gallery.md)
+
+    try:
+        return run_attempt(pickle.loads(spec))
+    except Exception as e:  # a plain exception: the client need not unpickle taichi_soft classes
+        raise RuntimeError(str(e)) from None
+
+
+# The same function marked as defined in __main__, which cloudpickle (Dask's serializer for
+# callables) sends by value, with only the builtins as globals.
+_DASK_ENTRY = types.FunctionType(_dask_entry.__code__, {"__builtins__": __builtins__}, "_dask_entry")
+_DASK_ENTRY.__module__ = "__main__"
+_DASK_ENTRY.__qualname__ = "_dask_entry"
 
 
 def default_workers() -> int:
