@@ -171,17 +171,17 @@ def run_gallery(plan: Plan, executor, scene_dts: dict):
     """Run every task on ``executor``; write videos, ``gallery.json`` and ``index.html`` into
     ``plan.out``. Returns the ``Outcome`` (failed and unfinished tasks get a cell saying so)."""
     tasks = build_tasks(plan, scene_dts)
-    outcome = run_tasks(tasks, executor, label="gallery")
     plan.out.mkdir(parents=True, exist_ok=True)
+
+    def write_video(key, res):  # as each task finishes: a crash later loses no finished video
+        write_atomic(plan.out / video_name(*key.split("/")), lambda tmp: Path(tmp).write_bytes(res["video"]))
+        return {k: v for k, v in res.items() if k != "video"}
+
+    outcome = run_tasks(tasks, executor, label="gallery", on_result=write_video)
     cells = {}
     for task in tasks:
-        terrain, column = task.key.split("/")
-        name = video_name(terrain, column)
         res = outcome.results.get(task.key)
-        if res is not None:
-            write_atomic(plan.out / name, lambda tmp, b=res["video"]: Path(tmp).write_bytes(b))
-            res = {k: v for k, v in res.items() if k != "video"}
-        cells[task.key] = {"video": name, "result": res,
+        cells[task.key] = {"video": video_name(*task.key.split("/")), "result": res,
                            "error": outcome.failed.get(task.key) or (None if res else "not run (interrupted)")}
     meta = {"terrains": plan.terrains, "integrators": plan.integrators, "duration": plan.duration,
             "resolution": list(plan.resolution), "sets": plan.sets, "cells": cells}

@@ -251,12 +251,15 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
 
 
 # -- the sweep loop ------------------------------------------------------------------------------------
-def run_tasks(tasks: list[Task], executor, label: str = "tasks", retries: int = 1, bar=True) -> Outcome:
+def run_tasks(tasks: list[Task], executor, label: str = "tasks", retries: int = 1, bar=True,
+              on_result=None) -> Outcome:
     """Run every task on ``executor``; retry each failure ``retries`` times; Ctrl-C keeps what finished.
 
     The executor stays open (one may serve several sweeps); the caller closes it.
     ``bar``: draw a tqdm progress bar on stderr (done / running / failed, ETA; off when stderr is
     not a terminal). Results come back in task order regardless of completion order.
+    ``on_result(key, result) -> kept`` (optional) is called as each task finishes, so outputs can
+    be written at once; what it returns is stored in ``Outcome.results`` in place of the result.
     """
     from .progress import TaskBar
 
@@ -282,12 +285,14 @@ def run_tasks(tasks: list[Task], executor, label: str = "tasks", retries: int = 
             for fut in executor.wait(list(inflight), POLL_S):
                 key = inflight.pop(fut)
                 try:
-                    results[key] = executor.result(fut)
+                    result = executor.result(fut)
                 except Exception as e:  # a failed attempt, a lost worker, a cancelled future
                     if attempts[key] <= retries:
                         submit(key)
                     else:
                         failed[key] = _one_line(e)
+                else:
+                    results[key] = on_result(key, result) if on_result else result
                 progress.show(len(results), executor.running(inflight), len(failed), advance=True)
     except KeyboardInterrupt:
         interrupted = True
