@@ -25,6 +25,7 @@ from .tasks import Task, run_tasks
 IMPLICIT_DT = 1.0 / 60.0
 DEFAULT_RESOLUTION = (640, 360)  # [px] of each single-run video; the mosaics are twice as wide and high
 PAGE = "index.html"
+MIN_ENERGY_SPAN = 1e-3  # smallest energy-axis range of the caption plots, relative to |E|
 
 
 @dataclass
@@ -197,8 +198,14 @@ def energy_svg(samples, diverged_at=None, width: int = 220, height: int = 56) ->
     if len(pts) < 2:
         return '<svg class="energy" width="%d" height="%d" role="img" aria-label="no energy samples"></svg>' % (width, height)
     t0, t1 = pts[0][0], pts[-1][0]
-    lo, hi = min(e for _, e in pts), max(e for _, e in pts)
-    span_t, span_e = (t1 - t0) or 1.0, (hi - lo) or max(abs(hi), 1.0)
+    e_min, e_max = lo, hi = min(e for _, e in pts), max(e for _, e in pts)
+    # The axis spans at least MIN_ENERGY_SPAN of the energy's size, so round-off wiggles of a
+    # conserving method do not fill the plot.
+    floor = MIN_ENERGY_SPAN * max(abs(lo), abs(hi), 1.0)
+    if hi - lo < floor:
+        mid = (hi + lo) / 2
+        lo, hi = mid - floor / 2, mid + floor / 2
+    span_t, span_e = (t1 - t0) or 1.0, hi - lo
     pad = 12  # px left free at the top and bottom for the labels
 
     def xy(t, e):
@@ -210,9 +217,9 @@ def energy_svg(samples, diverged_at=None, width: int = 220, height: int = 56) ->
         x = width * min(max((diverged_at - t0) / span_t, 0.0), 1.0)
         mark = f'<line x1="{x:.1f}" y1="0" x2="{x:.1f}" y2="{height}" class="div"/>'
     return (f'<svg class="energy" width="{width}" height="{height}" viewBox="0 0 {width} {height}" role="img" '
-            f'aria-label="total energy from {lo:.4g} to {hi:.4g} J over {t0:g}..{t1:g} s">'
+            f'aria-label="total energy from {e_min:.6g} to {e_max:.6g} J over {t0:g}..{t1:g} s">'
             f'<polyline points="{line}"/>{mark}'
-            f'<text x="2" y="10">E max {hi:.4g} J</text><text x="2" y="{height - 2}">min {lo:.4g} J, '
+            f'<text x="2" y="10">E max {e_max:.6g} J</text><text x="2" y="{height - 2}">min {e_min:.6g} J, '
             f't {t0:g}..{t1:.3g} s</text></svg>')
 
 
