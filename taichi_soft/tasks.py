@@ -286,7 +286,10 @@ def run_tasks(tasks: list[Task], executor, label: str = "tasks", retries: int = 
                 key = inflight.pop(fut)
                 try:
                     result = executor.result(fut)
-                except Exception as e:  # a failed attempt, a lost worker, a cancelled future
+                except (KeyboardInterrupt, SystemExit):
+                    raise
+                except BaseException as e:  # a failed attempt, a lost worker, a cancelled future
+                    # (Dask's cancelled-future error derives from asyncio's, a BaseException)
                     if attempts[key] <= retries:
                         submit(key)
                     else:
