@@ -1,8 +1,10 @@
 """Command line: ``python main.py [run|list|...]``.
 
 Exit status: 0 success, 2 bad input (one line on stderr, nothing overwritten), 3 the run
-diverged (summary and states so far are still written), 4 a sweep's task failed twice (the
-others' outputs are still written), 130 interrupted (what finished is still written).
+diverged (summary and states so far are still written), 4 an output could not be written (one
+line per output; each keeps its old file), 5 a sweep's task failed twice (the others' outputs are
+still written), 130 / 143 / 129 interrupted by SIGINT / SIGTERM / SIGHUP (nothing half-written is
+left; a sweep keeps what finished).
 """
 from __future__ import annotations
 
@@ -10,13 +12,15 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 from pathlib import Path
 
-from .errors import UserError
-from .outfiles import write_atomic
+from .errors import OutputError, Terminated, UserError
+from .memory import check_fits
+from .outfiles import probe_writable, write_atomic
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_TASKS_FAILED = 0, 2, 3, 4
+EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, EXIT_TASKS_FAILED = 0, 2, 3, 4, 5
 # The main job (`python main.py`): the assignment's cube dropped on the plane.
 DEFAULT_SCENE, DEFAULT_INTEGRATOR = "plane", "rk4"
 DEFAULT_COMPARE = "explicit_euler,semi_implicit_euler,midpoint,rk4"
@@ -66,6 +70,11 @@ def _check_parent(p: Path, flag: str, path: str):
         raise UserError(f"{flag} {path}: cannot create directory {parent}: {e.strerror}") from None
     if not os.access(parent, os.W_OK):
         raise UserError(f"{flag} {path}: directory {parent} is not writable")
+    try:
+        probe_writable(parent)
+    except (OSError, OutputError) as e:
+        reason = e.strerror if isinstance(e, OSError) else str(e)
+        raise UserError(f"{flag} {path}: cannot create files in {parent}: {reason}") from None
 
 
 def finite_or_none(obj):
@@ -157,13 +166,13 @@ def load_scene_from_args(args):
     from .integrators import names
     from .scene import load_scene
 
-    overrides = list(args.set)
+    flags = {}
     for flag, key in (("integrator", "sim.integrator"), ("dt", "sim.dt"), ("duration", "sim.duration"),
                       ("fps", "render.fps"), ("resolution", "render.resolution")):
         value = getattr(args, flag, None)
         if value is not None:
-            overrides.append(f"{key}={json.dumps(value) if isinstance(value, str) else repr(value)}")
-    return load_scene(args.scene, overrides, integrator_names=names())
+            flags[key] = (value, f"--{flag} {value if not isinstance(value, list) else 'x'.join(map(str, value))}")
+    return load_scene(args.scene, args.set, integrator_names=names(), flags=flags)
 
 
 def start_taichi(args):
@@ -195,6 +204,7 @@ def cmd_run(args) -> int:
     from .simulation import Simulation, states_arrays
 
     scene = load_scene_from_args(args)
+    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
     render_options = render_options_from_args(args, scene)
@@ -202,7 +212,8 @@ def cmd_run(args) -> int:
     sim = Simulation(scene)
     duration = scene.sim["duration"]
     fps = scene.data["render"]["fps"]
-    label = f"{scene.name}/{sim.integrator_name}"
+    label = f"{scene.label}/{sim.integrator_name}"
+    _note_whole_steps(duration, sim.dt)
     recorder, step_progress = None, None
     if render_options.any:
         from .render.recorder import FrameRecorder, frame_count
@@ -217,34 +228,69 @@ def cmd_run(args) -> int:
         step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
     try:
         result = sim.run(duration, fps, on_frame=recorder, record=states_path is not None, progress=step_progress)
+    except OutputError as e:  # the video or frames failed part-way (full disk, encoder error): stop there
+        recorder.abort()
+        others = [f"--{name} {path}" for name, path in (("summary", summary_path), ("states", states_path)) if path]
+        raise OutputError(f"{e}; the run stopped at t = {sim.time:.3f} s" +
+                          (f", so {' and '.join(others)} {'was' if len(others) == 1 else 'were'} not written either"
+                           if others else "")) from None
     except BaseException:
         if recorder is not None:
             recorder.abort()
         raise
     finally:
         bar.close()
+    failures = []
+    written = []
     if recorder is not None:
-        recorder.finish()
+        try:
+            recorder.finish()
+            written += list(zip(("video", "frames", "meshes"), _render_paths(render_options)))
+        except OutputError as e:
+            failures.append(str(e))
     summary = sim.summary(result)
     if summary_path:
         text = json.dumps(finite_or_none(summary), indent=2)
-        write_atomic(summary_path, lambda tmp: Path(tmp).write_text(text + "\n"))
+        failures += _write_output("summary", summary_path, lambda tmp: Path(tmp).write_text(text + "\n"), written)
     if states_path:
         arrays = states_arrays(result.frames, sim.model.real)
-        write_atomic(states_path, lambda tmp: np.savez(open(tmp, "wb"), **arrays))
+
+        def save(tmp):
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+        failures += _write_output("states", states_path, save, written)
+    if not result.diverged:
+        f = summary["final"]
+        com = ", ".join(f"{c:.3f}" for c in f["center_of_mass"])
+        print(f"{scene.label}/{sim.integrator_name}: {result.steps} steps of {sim.dt:g} s = {result.sim_time:.3f} s "
+              f"simulated in {result.wall_seconds:.2f} s wall ({summary['steps_per_second']:.0f} steps/s); "
+              f"final centre of mass ({com}), kinetic energy {f['kinetic_energy']:.3g} J")
+    _print_outputs(written)
+    for line in failures:
+        print(f"error: {line}", file=sys.stderr)
     if result.diverged:
-        _print_outputs(zip(("video", "frames", "meshes"), _render_paths(render_options)))
         print(f"diverged at t = {result.diverged_at:.4f} s (step {result.diverged_step}) with {sim.integrator_name} "
               f"at dt = {sim.dt:g} s; try --dt {sim.suggest_dt():g} or a more stable integrator", file=sys.stderr)
         return EXIT_DIVERGED
-    f = summary["final"]
-    com = ", ".join(f"{c:.3f}" for c in f["center_of_mass"])
-    print(f"{scene.name}/{sim.integrator_name}: {result.steps} steps of {sim.dt:g} s = {result.sim_time:.3f} s simulated "
-          f"in {result.wall_seconds:.2f} s wall ({summary['steps_per_second']:.0f} steps/s); "
-          f"final centre of mass ({com}), kinetic energy {f['kinetic_energy']:.3g} J")
-    _print_outputs([("summary", summary_path), ("states", states_path),
-                    *zip(("video", "frames", "meshes"), _render_paths(render_options))])
-    return EXIT_OK
+    return EXIT_OUTPUT if failures else EXIT_OK
+
+
+def _note_whole_steps(duration: float, dt: float):
+    """Say what is simulated when the duration is not a whole number of steps."""
+    steps = max(int(round(duration / dt)), 1)
+    if abs(steps * dt - duration) > 1e-9 * duration:
+        print(f"note: simulating {steps} steps of {dt:g} s = {steps * dt:g} s (sim.duration {duration:g} s "
+              "is not a whole number of steps)", file=sys.stderr)
+
+
+def _write_output(label: str, path: Path, write, written: list) -> list[str]:
+    """Write one output atomically; on success add (label, path) to ``written``, else return its error."""
+    try:
+        write_atomic(path, write)
+    except OutputError as e:
+        return [f"{label}: {e}"]
+    written.append((label, path))
+    return []
 
 
 def _render_paths(options) -> list:
@@ -276,6 +322,7 @@ def cmd_compare(args) -> int:
 
     integrators = parse_integrator_list(args.integrators)
     scene = load_scene_from_args(args)
+    check_fits(scene.data, integrators, args.precision, args.arch)
     if args.video is None and args.frames is None:
         args.video = f"out/compare-{scene.name}.mp4"
     render_options = render_options_from_args(args, scene)
@@ -285,7 +332,7 @@ def cmd_compare(args) -> int:
 
     comparison = Comparison(scene, integrators, render_options)
     n_frames = frame_count(scene.sim["duration"], comparison.dt, render_options.fps)
-    bar = CountBar(n_frames, f"{scene.name}: {', '.join(integrators)}", unit="frame")
+    bar = CountBar(n_frames, f"{scene.label}: {', '.join(integrators)}", unit="frame")
     try:
         results = comparison.run(scene.sim["duration"],
                                  progress=lambda k, t: bar.update(k, f"frame {k}/{n_frames} t={t:6.3f}s"))
@@ -306,7 +353,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    """``bench accuracy|stability|speed|report``: measure and write CSV, PNG and Markdown (docs/benchmarks.md)."""
+    """``bench accuracy|stability|speed|memory|report``: measure and write CSV, PNG and Markdown (docs/benchmarks/REPORT.md)."""
     import time
 
     from . import runtime
@@ -319,18 +366,18 @@ def cmd_bench(args) -> int:
         runtime.init(args.arch, args.precision, kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
-    if args.study == "speed" and (args.workers is not None or args.scheduler is not None):
-        raise UserError("bench speed runs one configuration at a time (its timings need a quiet machine); "
-                        "--workers/--scheduler apply to the accuracy and stability sweeps")
+    if args.study in ("speed", "memory") and (args.workers is not None or args.scheduler is not None):
+        raise UserError(f"bench {args.study} runs one configuration at a time (its measurements need a quiet "
+                        "machine); --workers/--scheduler apply to the accuracy and stability sweeps")
     default = "out/benchmarks-quick" if args.quick else "docs/benchmarks"
     out_dir = check_output_dir(args.out or default, "--out")
     # Before any work: an unreachable --scheduler is refused here, in a few seconds.
-    executor = make_executor(args.workers, args.scheduler) if args.study != "speed" else None
+    executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
     out_dir.mkdir(parents=True, exist_ok=True)
     from .bench import report
 
     start = time.perf_counter()
-    acc = stab = speed = None
+    acc = stab = speed = mem = None
     files = []
     try:
         if args.study in ("accuracy", "report"):
@@ -348,9 +395,14 @@ def cmd_bench(args) -> int:
         speed = report.run_speed(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
         bar.close()
         files += report.write_speed(speed, out_dir)
+    if args.study in ("memory", "report") and not any(r and r["interrupted"] for r in (acc, stab, speed)):
+        bar = CountBar(1, "bench memory", unit="size")
+        mem = report.run_memory(args.quick, lambda done, total, what: bar.update(done, str(what)[:60], total=total))
+        bar.close()
+        files += report.write_memory(mem, out_dir)
     command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
     name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
-    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start)
+    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem)
     if name != "REPORT.md":
         md = md.rename(out_dir / name)
     files.append(md.name)
@@ -362,7 +414,7 @@ def cmd_bench(args) -> int:
     failed = {k: v for r in (acc, stab) if r for k, v in r["failed"].items()}
     for key, err in failed.items():
         print(f"bench {args.study}: task {key} FAILED (retried once): {err}", file=sys.stderr)
-    if any(r and r["interrupted"] for r in (acc, stab, speed)):
+    if any(r and r["interrupted"] for r in (acc, stab, speed, mem)):
         return 130
     return EXIT_TASKS_FAILED if failed else EXIT_OK
 
@@ -424,6 +476,7 @@ def add_task_args(p: argparse.ArgumentParser):
 def cmd_demo(args) -> int:
     """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
     scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
+    check_fits(scene.data, None, args.precision, args.arch)
     screenshot = check_output_path(args.screenshot, "--screenshot", [".png"])
     start_taichi(args)
     from .demo.app import run_demo
@@ -457,8 +510,8 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
     p_demo.set_defaults(func=cmd_demo)
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "report", "speed-worker"],
-                         help="what to measure; report runs all three and writes REPORT.md")
+    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "memory", "report", "speed-worker"],
+                         help="what to measure; report runs all four and writes REPORT.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     add_task_args(p_bench)
@@ -485,6 +538,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    previous = _catch_termination()
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -494,9 +548,31 @@ def main(argv=None) -> int:
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    except OutputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_OUTPUT
+    except KeyboardInterrupt as e:
+        signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
+        print(f"interrupted ({signal.Signals(signum).name}); no output was written or replaced", file=sys.stderr)
+        return 128 + signum
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _catch_termination() -> dict:
+    """SIGTERM and SIGHUP raise ``Terminated`` in the main thread (as SIGINT raises
+    KeyboardInterrupt), so a killed run drops its temporary files; returns the old handlers."""
+    def handler(signum, frame):
+        raise Terminated(signum)
+
+    previous = {}
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        try:
+            previous[signum] = signal.signal(signum, handler)
+        except ValueError:  # not the main thread (main() called from a worker): leave them
+            pass
+    return previous
 
 
 def main_job() -> int:

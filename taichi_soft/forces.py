@@ -9,6 +9,8 @@ Damper on particle a (seed):  f_a = -kd ((v_a - v_b) . l) l
 
 import taichi as ti
 
+from .model import end_b_spring
+
 
 @ti.func
 def spring_pair_force(model: ti.template(), x: ti.template(), v: ti.template(), a, b, rest, g):
@@ -78,9 +80,9 @@ class ForceEvaluator:
                 f = ti.Vector.zero(float, 3)
                 # Two branch-free runs: springs where i is end a (+f), then end b (-f).
                 for e in range(m.adj_offset[i], m.adj_split[i]):
-                    f += self.spring_f[m.adj_spring[e]]
+                    f += self.spring_f[m.adj_spring[e]]  # end-a entries: the code is the spring id
                 for e in range(m.adj_split[i], m.adj_offset[i + 1]):
-                    f -= self.spring_f[-m.adj_spring[e] - 1]
+                    f -= self.spring_f[end_b_spring(m.adj_spring[e])]
                 a[i] = self.particle_accel(x, v, i, f, dt)
         else:
             for i in range(m.n_particles):

@@ -58,26 +58,30 @@ def mosaic_resolution(resolution) -> tuple:
     return (2 * resolution[0], 2 * resolution[1])
 
 
-def _overrides(sets, dt, duration, resolution) -> list:
-    out = list(sets)
+def _load(terrain: str, sets, dt, duration, resolution):
+    """The scene with the gallery's ``--set`` overrides, then dt, duration and resolution on top
+    (as flags: they win over a ``--set`` of the same key, as in ``run``)."""
+    from .integrators import names
+    from .scene import load_scene
+
+    flags = {"render.resolution": (list(resolution), f"--resolution {resolution[0]}x{resolution[1]}")}
     if dt is not None:
-        out.append(f"sim.dt={dt!r}")
+        flags["sim.dt"] = (dt, f"--dt {dt:g}")
     if duration is not None:
-        out.append(f"sim.duration={duration!r}")
-    out.append(f"render.resolution=[{resolution[0]}, {resolution[1]}]")
-    return out
+        flags["sim.duration"] = (duration, f"--duration {duration:g}")
+    return load_scene(terrain, list(sets), integrator_names=names(), flags=flags)
 
 
 def check_plan(plan: Plan) -> dict:
     """Load every scene with the plan's overrides (bad input raises ``UserError`` before any work);
     returns {terrain: scene dt [s]}."""
-    from .integrators import names
-    from .scene import load_scene
+    from .memory import check_fits
 
     dts = {}
     for terrain in plan.terrains:
         for res in (plan.resolution, mosaic_resolution(plan.resolution)):
-            scene = load_scene(terrain, _overrides(plan.sets, plan.dt, plan.duration, res), integrator_names=names())
+            scene = _load(terrain, plan.sets, plan.dt, plan.duration, res)
+        check_fits(scene.data, None, "f64", "cpu")  # one run's memory; tasks run one per process
         dts[terrain] = scene.sim["dt"]
     return dts
 
@@ -102,15 +106,13 @@ def render_run(scene: str, integrator: str, dt: float, duration, resolution, set
     """Render one run to an MP4; return its bytes, frame count, run summary and energy per frame."""
     from . import runtime
     from .cli import finite_or_none
-    from .integrators import names
     from .render import overlay
     from .render.compare import solver_options
     from .render.recorder import FrameRecorder, RenderOptions
-    from .scene import load_scene
     from .simulation import Simulation
 
     runtime.init("cpu", "f64")
-    sc = load_scene(scene, _overrides(sets, dt, duration, resolution), integrator_names=names())
+    sc = _load(scene, sets, dt, duration, resolution)
     sim = Simulation(sc, integrator=integrator, options=solver_options(sc, integrator))
     fps = sc.data["render"]["fps"]
     energy = []
@@ -139,13 +141,11 @@ def render_compare(scene: str, integrators: list, dt, duration, resolution, sets
     """Render one terrain's ``compare`` mosaic (all integrators at one dt) to an MP4."""
     from . import runtime
     from .cli import finite_or_none
-    from .integrators import names
     from .render.compare import Comparison
     from .render.recorder import RenderOptions
-    from .scene import load_scene
 
     runtime.init("cpu", "f64")
-    sc = load_scene(scene, _overrides(sets, dt, duration, resolution), integrator_names=names())
+    sc = _load(scene, sets, dt, duration, resolution)
     fps = sc.data["render"]["fps"]
     with tempfile.TemporaryDirectory(prefix="taichi-soft-gallery-") as tmp:
         video = Path(tmp) / "compare.mp4"

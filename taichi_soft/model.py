@@ -1,18 +1,80 @@
 """Builder -> Model -> State: the static description of the bodies and their changing state.
 
-``ModelBuilder`` collects bodies on the numpy side; ``finalize()`` uploads them into a ``Model``
-of Taichi fields; ``model.state()`` allocates a ``State`` (positions and velocities).
+``ModelBuilder`` collects bodies on the numpy side; ``finalize()`` makes a ``Model`` of Taichi
+fields, writing the lattice springs and their adjacency on the device (no host copies of the
+per-spring arrays); ``model.state()`` allocates a ``State`` (positions and velocities).
 Everything a user may tune while a run is going (stiffness, damping, gravity) lives in fields,
 so changing it takes effect on the next step without recompiling a kernel.
+
+This module is the one home of two encodings every spring kernel relies on:
+
+* spring group ``g = body * 3 + kind`` (kind: stretch 0, shear 1, bend 2), the index into
+  ``group_k`` / ``group_kd``: ``spring_group``, ``group_body``, ``group_kind``;
+* the signed spring id in ``adj_spring``: ``s`` where the particle is end a of spring s, ``-s - 1``
+  where it is end b: ``end_a_code``, ``end_b_code``, ``is_end_a``, ``code_spring`` and (for
+  entries known to be end b, branch-free) ``end_b_spring``.
+
+They are ``ti.pyfunc``: callable from Python and from kernels alike.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
 
 from . import lattice
 from .lattice import SPRING_KINDS
+
+N_KINDS = len(SPRING_KINDS)  # spring groups per body
+
+
+# -- the two encodings (one home; see the module docstring) ---------------------------------------
+@ti.pyfunc
+def spring_group(body, kind):
+    """Group index of spring ``kind`` (0 stretch, 1 shear, 2 bend) of body ``body``."""
+    return body * N_KINDS + kind
+
+
+@ti.pyfunc
+def group_body(group):
+    """Body index of a spring group (works elementwise on numpy integer arrays)."""
+    return group // N_KINDS
+
+
+@ti.pyfunc
+def group_kind(group):
+    """Spring kind (0 stretch, 1 shear, 2 bend) of a group (works elementwise on numpy arrays)."""
+    return group % N_KINDS
+
+
+@ti.pyfunc
+def end_a_code(s):
+    """``adj_spring`` entry of spring s seen from its end a."""
+    return s
+
+
+@ti.pyfunc
+def end_b_code(s):
+    """``adj_spring`` entry of spring s seen from its end b (negative)."""
+    return -s - 1
+
+
+@ti.pyfunc
+def is_end_a(code):
+    """True where an ``adj_spring`` entry belongs to the spring's end a."""
+    return code >= 0
+
+
+@ti.pyfunc
+def end_b_spring(code):
+    """Spring id of an ``adj_spring`` entry known to be an end-b one (no branch)."""
+    return -code - 1
+
+
+@ti.pyfunc
+def code_spring(code):
+    """Spring id of any ``adj_spring`` entry (scalars; numpy: ``np.maximum(c, -c - 1)``)."""
+    return max(code, -code - 1)
 
 
 @dataclass
@@ -43,7 +105,6 @@ class BodyInfo:
     springs: slice
     surface: np.ndarray  # [n_tris, 3] global particle indices, outward winding
     spec: BodySpec
-    spring_counts: dict = field(default_factory=dict)
 
 
 class ModelBuilder:
@@ -59,41 +120,47 @@ class ModelBuilder:
         return len(self.specs) - 1
 
     def finalize(self) -> "Model":
-        xs, rests, vs, masses, bodies = [], [], [], [], []
-        pairs, groups, surfaces = [], [], []
-        group_k, group_kd = [], []
+        """The device ``Model``. Host memory: x0, v0 and masses (56 bytes per particle) kept,
+        one body's lattice (24 bytes per particle) as a temporary; springs are made on the device."""
+        n_particles = sum(spec.n ** 3 for spec in self.specs)
+        x0 = np.empty((n_particles, 3))
+        v0 = np.empty((n_particles, 3))
+        mass = np.empty(n_particles)
+        bodies, group_k, group_kd, kind_counts = [], [], [], np.zeros(N_KINDS, np.int64)
         p0 = s0 = 0
-        for b, spec in enumerate(self.specs):
+        for spec in self.specs:
             rot = lattice.rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
-            rest_local = lattice.lattice_points(spec.n, spec.size)
-            local = (rest_local * np.asarray(spec.initial_stretch, dtype=np.float64)) @ rot.T
-            center = np.asarray(spec.center, dtype=np.float64)
-            omega = np.asarray(spec.angular_velocity, dtype=np.float64)
-            xs.append(local + center)
-            rests.append(rest_local @ rot.T + center)
-            vs.append(np.asarray(spec.velocity, dtype=np.float64) + np.cross(omega, local))
-            masses.append(np.full(len(local), spec.particle_mass))
-            bp, bk = lattice.lattice_springs(spec.n)
-            pairs.append(bp + p0)
-            groups.append(bk + 3 * b)  # spring group = body * 3 + kind
+            pts = lattice.lattice_points(spec.n, spec.size)
+            pts *= np.asarray(spec.initial_stretch, dtype=np.float64)
+            sl = slice(p0, p0 + len(pts))
+            x, v = x0[sl], v0[sl]
+            np.matmul(pts, rot.T, out=x)  # start shape about the centre
+            del pts
+            w = np.asarray(spec.angular_velocity, dtype=np.float64)
+            # v = velocity + omega x r, written as r @ K^T with K the cross-product matrix of omega
+            cross = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+            np.matmul(x, cross.T, out=v)
+            v += np.asarray(spec.velocity, dtype=np.float64)
+            x += np.asarray(spec.center, dtype=np.float64)
+            mass[sl] = spec.particle_mass
             for k, kd in (spec.stretch, spec.shear, spec.bend):
                 group_k.append(k)
                 group_kd.append(kd)
+            counts = lattice.spring_counts(spec.n)
+            kind_counts += counts
             surf = lattice.surface_triangles(spec.n) + p0
-            surfaces.append(surf)
-            counts = {name: int((bk == i).sum()) for i, name in enumerate(SPRING_KINDS)}
-            bodies.append(BodyInfo(slice(p0, p0 + len(local)), slice(s0, s0 + len(bp)), surf, spec, counts))
-            p0 += len(local)
-            s0 += len(bp)
-        x = np.concatenate(xs)
-        x_rest = np.concatenate(rests)
-        pairs = np.concatenate(pairs)
-        rest = np.linalg.norm(x_rest[pairs[:, 0]] - x_rest[pairs[:, 1]], axis=1)
-        return Model(
-            x0=x, v0=np.concatenate(vs), mass=np.concatenate(masses), pairs=pairs,
-            rest=rest, group=np.concatenate(groups), group_k=np.array(group_k, dtype=np.float64),
-            group_kd=np.array(group_kd, dtype=np.float64), gravity=self.gravity, bodies=bodies,
-        )
+            bodies.append(BodyInfo(sl, slice(s0, s0 + sum(counts)), surf, spec))
+            p0 += len(x)
+            s0 += sum(counts)
+        model = Model.__new__(Model)
+        model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies)
+        for b, info in enumerate(bodies):
+            spec = info.spec
+            lattice.fill_springs(model.spring_ends, model.spring_rest, model.spring_group, spec.n,
+                                 info.particles.start, info.springs.start, spring_group(b, 0),
+                                 spec.size / (spec.n - 1))
+        model._build_adjacency()
+        return model
 
 
 @ti.data_oriented
@@ -104,28 +171,47 @@ class Model:
       mass, inv_mass      [n_particles]            particle mass [kg] and its inverse (0 = pinned)
       spring_ends         [n_springs] ivec2        particle indices a, b
       spring_rest         [n_springs]              rest length [m]
-      spring_group        [n_springs]              body * 3 + kind (stretch 0, shear 1, bend 2)
+      spring_group        [n_springs]              ``spring_group(body, kind)`` (stretch 0, shear 1, bend 2)
       group_k, group_kd   [3 n_bodies]             stiffness [N/m], damper coefficient [N s/m]
       adj_offset          [n_particles + 1]        CSR row starts of each particle's springs
       adj_other, adj_rest, adj_group [2 n_springs] the other end, rest length, group per entry
-      adj_spring          [2 n_springs]            spring id s if the particle is end a, else -s - 1
+      adj_spring          [2 n_springs]            ``end_a_code(s)`` if the particle is end a, else ``end_b_code(s)``
       adj_split           [n_particles]            where a particle's "end b" entries begin (its
                                                    "end a" entries come first: no sign branch)
       gravity             0-d vec3                 [m/s^2]
-    The adjacency lets force kernels gather over a particle's springs without atomics.
+    The adjacency lets force kernels gather over a particle's springs without atomics. Each
+    particle's entries are its "end a" springs by increasing id, then its "end b" ones likewise.
+
+    Host copies: ``x0_np``, ``v0_np`` (initial state, float64 [n_particles, 3]) and ``mass_np``
+    are kept (resets and diagnostics read them); ``pairs_np``, ``rest_np`` and ``group_np`` are
+    downloaded from the fields on each access (a fresh copy, for the few readers that need them).
+
+    ``Model(x0, v0, mass, pairs, rest, group, ...)`` takes any spring graph as host arrays;
+    ``ModelBuilder`` makes lattice models without host spring arrays.
     """
 
     def __init__(self, x0, v0, mass, pairs, rest, group, group_k, group_kd, gravity, bodies):
+        pairs = np.asarray(pairs, dtype=np.int32).reshape(-1, 2)
+        group = np.asarray(group, dtype=np.int32)
+        kinds = np.bincount(group_kind(group), minlength=N_KINDS) if len(group) else np.zeros(N_KINDS, np.int64)
+        self._setup(x0, v0, mass, len(pairs), kinds, group_k, group_kd, gravity, bodies)
+        if self.n_springs:
+            self.spring_ends.from_numpy(pairs)
+            self.spring_rest.from_numpy(np.asarray(rest, dtype=self.real))
+            self.spring_group.from_numpy(group)
+        self._build_adjacency()
+
+    def _setup(self, x0, v0, mass, n_springs, kind_counts, group_k, group_kd, gravity, bodies):
+        """Allocate every field and upload the per-particle and per-group data."""
         self.n_particles = int(len(x0))
-        self.n_springs = int(len(pairs))
+        self.n_springs = int(n_springs)
         self.n_groups = int(len(group_k))
         self.bodies: list[BodyInfo] = bodies
+        self._kind_counts = {name: int(c) for name, c in zip(SPRING_KINDS, kind_counts)}
         self.x0_np = np.asarray(x0, dtype=np.float64)
         self.v0_np = np.asarray(v0, dtype=np.float64)
         self.mass_np = np.asarray(mass, dtype=np.float64)
-        self.pairs_np = np.asarray(pairs, dtype=np.int64)
-        self.rest_np = np.asarray(rest, dtype=np.float64)
-        self.group_np = np.asarray(group, dtype=np.int64)
+        self.real = np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
 
         n, m = self.n_particles, max(self.n_springs, 1)
         self.mass = ti.field(float, n)
@@ -133,8 +219,8 @@ class Model:
         self.spring_ends = ti.Vector.field(2, ti.i32, m)
         self.spring_rest = ti.field(float, m)
         self.spring_group = ti.field(ti.i32, m)
-        self.group_k = ti.field(float, self.n_groups)
-        self.group_kd = ti.field(float, self.n_groups)
+        self.group_k = ti.field(float, max(self.n_groups, 1))
+        self.group_kd = ti.field(float, max(self.n_groups, 1))
         self.adj_offset = ti.field(ti.i32, n + 1)
         self.adj_other = ti.field(ti.i32, 2 * m)
         self.adj_rest = ti.field(float, 2 * m)
@@ -143,41 +229,99 @@ class Model:
         self.adj_split = ti.field(ti.i32, n)
         self.gravity = ti.Vector.field(3, float, ())
 
-        self.real = np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
-        self.mass.from_numpy(self.mass_np.astype(self.real))
-        self.inv_mass.from_numpy(np.where(self.mass_np > 0, 1.0 / np.maximum(self.mass_np, 1e-300), 0.0).astype(self.real))
-        if self.n_springs:
-            self.spring_ends.from_numpy(self.pairs_np.astype(np.int32))
-            self.spring_rest.from_numpy(self.rest_np.astype(self.real))
-            self.spring_group.from_numpy(self.group_np.astype(np.int32))
-            self._upload_adjacency()
-        self.group_k.from_numpy(np.asarray(group_k, dtype=self.real))
-        self.group_kd.from_numpy(np.asarray(group_kd, dtype=self.real))
-        self.gravity[None] = gravity
+        # Kernel arguments in the run's precision: backends without f64 (Vulkan, Metal) take them.
+        self._set_mass(self.mass_np.astype(self.real, copy=False))
+        self._set_groups(np.asarray(group_k, dtype=self.real), np.asarray(group_kd, dtype=self.real), len(group_k))
+        self.set_gravity(gravity)
         self.mass_version = 0  # bumped by set_particle_mass
 
-    def _upload_adjacency(self):
-        a, b = self.pairs_np[:, 0], self.pairs_np[:, 1]
-        owner = np.concatenate([a, b])
-        other = np.concatenate([b, a])
-        spring = np.concatenate([np.arange(self.n_springs)] * 2)
-        order = np.argsort(owner, kind="stable")
-        counts = np.bincount(owner, minlength=self.n_particles)
-        offset = np.concatenate([[0], np.cumsum(counts)])
-        self.adj_offset.from_numpy(offset.astype(np.int32))
-        self.adj_other.from_numpy(other[order].astype(np.int32))
-        self.adj_rest.from_numpy(self.rest_np[spring[order]].astype(self.real))
-        self.adj_group.from_numpy(self.group_np[spring[order]].astype(np.int32))
-        signed = np.concatenate([np.arange(self.n_springs), -np.arange(self.n_springs) - 1])
-        self.adj_spring.from_numpy(signed[order].astype(np.int32))
-        # The stable sort keeps each particle's "end a" entries (first half of `owner`) first.
-        split = offset[:-1] + np.bincount(a, minlength=self.n_particles)
-        self.adj_split.from_numpy(split.astype(np.int32))
+    @ti.kernel
+    def _set_mass(self, mass: ti.types.ndarray(ndim=1)):
+        for i in range(self.n_particles):
+            mi = ti.cast(mass[i], float)
+            self.mass[i] = mi
+            self.inv_mass[i] = 1.0 / mi if mi > 0 else 0.0
+
+    @ti.kernel
+    def _set_groups(self, k: ti.types.ndarray(ndim=1), kd: ti.types.ndarray(ndim=1), count: ti.i32):
+        for g in range(count):
+            self.group_k[g] = ti.cast(k[g], float)
+            self.group_kd[g] = ti.cast(kd[g], float)
+
+    @ti.func
+    def _adjacency_key(self, code):
+        """Sort key of an adjacency entry: end-a entries first, each run by increasing spring id."""
+        key = code
+        if not is_end_a(code):
+            key = self.n_springs + end_b_spring(code)
+        return key
+
+    @ti.kernel
+    def _build_adjacency(self):
+        """CSR adjacency of ``spring_ends`` on the device, in place in the adj_* fields.
+
+        Count each particle's entries, prefix-sum them (serial: one pass over particles), place
+        each spring's two codes at per-particle cursors (atomic, so in any order), then sort each
+        particle's few entries by ``_adjacency_key`` (deterministic result) and gather the other
+        end, rest length and group of every entry.
+        """
+        n, m = self.n_particles, self.n_springs
+        for i in range(n + 1):
+            self.adj_offset[i] = 0
+        for s in range(m):
+            ti.atomic_add(self.adj_offset[self.spring_ends[s][0] + 1], 1)
+            ti.atomic_add(self.adj_offset[self.spring_ends[s][1] + 1], 1)
+        ti.loop_config(serialize=True)
+        for i in range(n):
+            self.adj_offset[i + 1] += self.adj_offset[i]
+        for i in range(n):
+            self.adj_split[i] = self.adj_offset[i]  # used as the fill cursor first
+        for s in range(m):
+            self.adj_spring[ti.atomic_add(self.adj_split[self.spring_ends[s][0]], 1)] = end_a_code(s)
+            self.adj_spring[ti.atomic_add(self.adj_split[self.spring_ends[s][1]], 1)] = end_b_code(s)
+        for i in range(n):
+            lo, hi = self.adj_offset[i], self.adj_offset[i + 1]
+            for e in range(lo + 1, hi):  # insertion sort: a particle has at most a few dozen entries
+                code = self.adj_spring[e]
+                key = self._adjacency_key(code)
+                f = e
+                while f > lo and self._adjacency_key(self.adj_spring[f - 1]) > key:
+                    self.adj_spring[f] = self.adj_spring[f - 1]
+                    f -= 1
+                self.adj_spring[f] = code
+            split = lo
+            for e in range(lo, hi):
+                code = self.adj_spring[e]
+                s = code_spring(code)
+                other = self.spring_ends[s][0]
+                if is_end_a(code):
+                    other = self.spring_ends[s][1]
+                    split += 1
+                self.adj_other[e] = other
+                self.adj_rest[e] = self.spring_rest[s]
+                self.adj_group[e] = self.spring_group[s]
+            self.adj_split[i] = split
+
+    # -- host views (downloads; see the class docstring) -----------------------------------------
+    @property
+    def pairs_np(self) -> np.ndarray:
+        """Spring ends [n_springs, 2] int32, downloaded from ``spring_ends`` (a new copy each call)."""
+        return self.spring_ends.to_numpy()[: self.n_springs]
+
+    @property
+    def rest_np(self) -> np.ndarray:
+        """Rest lengths [m], [n_springs] float64, downloaded from ``spring_rest`` (a new copy each call)."""
+        return self.spring_rest.to_numpy()[: self.n_springs].astype(np.float64, copy=False)
+
+    @property
+    def group_np(self) -> np.ndarray:
+        """Spring groups [n_springs] int32, downloaded from ``spring_group`` (a new copy each call)."""
+        return self.spring_group.to_numpy()[: self.n_springs]
 
     # -- run-time parameters -------------------------------------------------------------
     def set_spring_params(self, body: int, kind: str, k: float | None = None, damping: float | None = None):
         """Change one body's stiffness [N/m] and/or damper coefficient [N s/m] of one spring kind."""
-        g = 3 * body + SPRING_KINDS.index(kind)
+        g = spring_group(body, SPRING_KINDS.index(kind))
         if k is not None:
             self.group_k[g] = k
         if damping is not None:
@@ -188,13 +332,10 @@ class Model:
 
         Bumps ``mass_version`` so solvers that factorise a mass matrix know to refactorise.
         """
-        sel = np.ones(self.n_particles, bool) if body is None else np.zeros(self.n_particles, bool)
-        if body is not None:
-            sel[self.bodies[body].particles] = True
-        free = self.mass_np > 0
-        self.mass_np = np.where(sel & free, float(mass), self.mass_np)
-        self.mass.from_numpy(self.mass_np.astype(self.real))
-        self.inv_mass.from_numpy(np.where(self.mass_np > 0, 1.0 / np.maximum(self.mass_np, 1e-300), 0.0).astype(self.real))
+        sel = slice(None) if body is None else self.bodies[body].particles
+        part = self.mass_np[sel]
+        part[part > 0] = float(mass)
+        self._set_mass(self.mass_np.astype(self.real, copy=False))
         self.mass_version += 1
 
     def set_gravity(self, g):
@@ -203,7 +344,7 @@ class Model:
 
     def spring_counts(self) -> dict:
         """Number of springs of each kind over all bodies."""
-        return {name: int((self.group_np % 3 == i).sum()) for i, name in enumerate(SPRING_KINDS)}
+        return dict(self._kind_counts)
 
     def state(self) -> "State":
         """A new ``State`` at the model's initial positions and velocities."""
@@ -222,10 +363,24 @@ class State:
         self.v = ti.Vector.field(3, float, n_particles)
 
     def set(self, x: np.ndarray, v: np.ndarray):
-        """Copy positions [m] and velocities [m/s], arrays [n_particles, 3], into the state."""
+        """Copy positions [m] and velocities [m/s], arrays [n_particles, 3], into the state.
+
+        One kernel (no host copy when the arrays are already in the run's precision).
+        """
         real = np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
-        self.x.from_numpy(np.asarray(x, dtype=real))
-        self.v.from_numpy(np.asarray(v, dtype=real))
+        arrays = []
+        for name, a in (("x", x), ("v", v)):
+            a = np.ascontiguousarray(a, dtype=real)
+            if a.shape != (self.n_particles, 3):
+                raise ValueError(f"State.set: {name} has shape {a.shape}, expected ({self.n_particles}, 3)")
+            arrays.append(a)
+        self._set(*arrays)
+
+    @ti.kernel
+    def _set(self, x: ti.types.ndarray(ndim=2), v: ti.types.ndarray(ndim=2)):
+        for i in range(self.n_particles):
+            self.x[i] = ti.cast(ti.Vector([x[i, 0], x[i, 1], x[i, 2]]), float)
+            self.v[i] = ti.cast(ti.Vector([v[i, 0], v[i, 1], v[i, 2]]), float)
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:
         """Copies of (x, v) as numpy arrays [n_particles, 3] in the run's precision."""

@@ -185,7 +185,7 @@ def test_page_in_headless_chromium_lays_out_the_grid_and_loads_the_videos(galler
 
 
 def test_a_failed_task_gets_a_cell_and_a_non_zero_exit(tmp_path, monkeypatch):
-    """Both of one terrain's tasks replaced by one that raises: retried once, reported, exit 4."""
+    """Both of one terrain's tasks replaced by one that raises: retried once, reported, exit 5."""
     from taichi_soft import gallery
     from taichi_soft.tasks import Task
 

@@ -3,23 +3,125 @@ import numpy as np
 import pytest
 
 from taichi_soft import lattice
-from taichi_soft.lattice import BEND, SHEAR, STRETCH
+from taichi_soft.lattice import BEND, SHEAR, SPRING_KINDS, STRETCH
 
 from physics_helpers import accelerations, build, numeric_gradient, spring_energy
 
 
 @pytest.mark.parametrize("n, expected", [(2, (12, 16, 0)), (3, (54, 104, 27)), (10, (2700, 7776, 2400))])
 def test_spring_counts(n, expected):
-    _, kinds = lattice.lattice_springs(n)
-    assert tuple(np.bincount(kinds, minlength=3)) == expected
+    assert lattice.spring_counts(n) == expected
     # and the closed forms: 3 n^2 (n-1); 6 n (n-1)^2 + 4 (n-1)^3; 3 n^2 (n-2)
     assert expected == (3 * n * n * (n - 1), 6 * n * (n - 1) ** 2 + 4 * (n - 1) ** 3, 3 * n * n * max(n - 2, 0))
 
 
-def test_no_duplicate_springs():
-    pairs, _ = lattice.lattice_springs(5)
-    keys = {tuple(sorted(p)) for p in pairs.tolist()}
-    assert len(keys) == len(pairs)
+# -- the device builder against the lattice's definition and the previous (numpy) builder ----------
+_SIZES = (2, 3, 4, 5, 6)
+
+
+def _first_principles_springs(n):
+    """{(a, b): kind} of an n^3 lattice from geometry alone: stretch joins axis neighbours, shear
+    face and body diagonals (squared distance 2 or 3 spacings^2), bend axis points two apart."""
+    c = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    d = c[None, :, :] - c[:, None, :]
+    d2 = (d * d).sum(-1)
+    axis2 = (np.count_nonzero(d, axis=-1) == 1) & (d2 == 4)
+    kind = np.full(d2.shape, -1)
+    kind[d2 == 1] = STRETCH
+    kind[(d2 == 2) | (d2 == 3)] = SHEAR
+    kind[axis2] = BEND
+    a, b = np.nonzero((kind >= 0) & (np.arange(n**3)[:, None] < np.arange(n**3)[None, :]))
+    return {(int(i), int(j)): int(kind[i, j]) for i, j in zip(a, b)}
+
+
+def _previous_builder_springs(n):
+    """The numpy builder this project had before the device one (same offsets, same order)."""
+    offsets = {STRETCH: [(1, 0, 0), (0, 1, 0), (0, 0, 1)],
+               SHEAR: [(1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1),
+                       (1, 1, 1), (1, 1, -1), (1, -1, 1), (1, -1, -1)],
+               BEND: [(2, 0, 0), (0, 2, 0), (0, 0, 2)]}
+    idx = np.arange(n**3).reshape(n, n, n)
+    pairs, kinds = [], []
+    for kind, offs in offsets.items():
+        for off in offs:
+            src = tuple(slice(max(0, -o), n - max(0, o)) for o in off)
+            dst = tuple(slice(max(0, o), n - max(0, -o)) for o in off)
+            pairs.append(np.stack([idx[src].ravel(), idx[dst].ravel()], axis=1))
+            kinds.append(np.full(pairs[-1].shape[0], kind))
+    return np.concatenate(pairs), np.concatenate(kinds)
+
+
+def _previous_adjacency(pairs, rest, group, n_particles):
+    """CSR adjacency as the previous builder made it (a stable argsort of both ends)."""
+    m = len(pairs)
+    owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    order = np.argsort(owner, kind="stable")
+    spring = np.concatenate([np.arange(m)] * 2)[order]
+    offset = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=n_particles))])
+    return {"adj_offset": offset, "adj_other": np.concatenate([pairs[:, 1], pairs[:, 0]])[order],
+            "adj_rest": rest[spring], "adj_group": group[spring],
+            "adj_spring": np.concatenate([np.arange(m), -np.arange(m) - 1])[order],
+            "adj_split": offset[:-1] + np.bincount(pairs[:, 0], minlength=n_particles)}
+
+
+def test_builder_matches_first_principles_and_previous_builder():
+    """Bodies n = 2..6 in one model: springs, rest lengths, groups and adjacency, exactly."""
+    from taichi_soft.model import BodySpec, ModelBuilder
+
+    builder = ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    for n in _SIZES:
+        builder.add_cube(BodySpec(n=n, size=0.5 * n, center=(3.0 * n, 1.0, -2.0), rotation_axis=(1.0, 2.0, 0.5),
+                                  rotation_degrees=17.0 * n, initial_stretch=(1.2, 0.9, 1.0)))
+    model = builder.finalize()
+    pairs, rest, group = model.pairs_np, model.rest_np, model.group_np
+    ref_pairs, ref_rest, ref_group = [], [], []
+    for b, (n, info) in enumerate(zip(_SIZES, model.bodies)):
+        p0 = info.particles.start
+        local = {(int(i) - p0, int(j) - p0): int(k) for (i, j), k in zip(pairs[info.springs], group[info.springs] - 3 * b)}
+        assert local == _first_principles_springs(n)
+        bp, bk = _previous_builder_springs(n)
+        ref_pairs.append(bp + p0)
+        ref_group.append(bk + 3 * b)
+        # rest lengths from the body's rest shape, rotated and moved as the previous builder did
+        axis = np.linspace(-0.25 * n, 0.25 * n, n)
+        x = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+        x = x @ lattice.rotation_matrix((1.0, 2.0, 0.5), 17.0 * n).T + info.spec.center
+        ref_rest.append(np.linalg.norm(x[bp[:, 0]] - x[bp[:, 1]], axis=1))
+    ref_pairs, ref_rest, ref_group = np.concatenate(ref_pairs), np.concatenate(ref_rest), np.concatenate(ref_group)
+    np.testing.assert_array_equal(pairs, ref_pairs)
+    np.testing.assert_array_equal(group, ref_group)
+    np.testing.assert_allclose(rest, ref_rest, rtol=1e-12)
+    assert model.spring_counts() == dict(zip(SPRING_KINDS, np.bincount(ref_group % 3, minlength=3).tolist()))
+    for name, want in _previous_adjacency(ref_pairs, rest, ref_group, model.n_particles).items():
+        np.testing.assert_array_equal(getattr(model, name).to_numpy(), want, err_msg=name)
+
+
+def test_adjacency_of_any_graph():
+    """The generic constructor (springs given as host arrays, any order) gets the same adjacency."""
+    from taichi_soft.model import Model
+
+    rng = np.random.default_rng(3)
+    n_particles = 7
+    pairs = np.array([(a, b) for a in range(n_particles) for b in range(n_particles) if a != b and rng.random() < 0.4])
+    rest = rng.random(len(pairs)) + 0.5
+    group = rng.integers(0, 6, len(pairs))
+    x0 = rng.standard_normal((n_particles, 3))
+    model = Model(x0=x0, v0=np.zeros_like(x0), mass=np.ones(n_particles), pairs=pairs, rest=rest, group=group,
+                  group_k=np.ones(6), group_kd=np.ones(6), gravity=(0.0, 0.0, 0.0), bodies=[])
+    for name, want in _previous_adjacency(pairs, rest, group, n_particles).items():
+        np.testing.assert_array_equal(getattr(model, name).to_numpy(), want, err_msg=name)
+
+
+def test_encodings_round_trip():
+    from taichi_soft import model as M
+
+    for s in (0, 1, 17):
+        assert M.is_end_a(M.end_a_code(s)) and not M.is_end_a(M.end_b_code(s))
+        assert M.code_spring(M.end_a_code(s)) == s == M.code_spring(M.end_b_code(s)) == M.end_b_spring(M.end_b_code(s))
+    for body in (0, 4):
+        for kind in range(3):
+            g = M.spring_group(body, kind)
+            assert (M.group_body(g), M.group_kind(g)) == (body, kind)
 
 
 @pytest.mark.parametrize("degrees", [0.0, 37.0])

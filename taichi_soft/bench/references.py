@@ -16,10 +16,11 @@ import numpy as np
 
 def spring_arrays(model):
     """Per-spring (a, b, rest [m], k [N/m], kd [N s/m]) and per-particle inverse mass, numpy."""
-    k = model.group_k.to_numpy().astype(np.float64)[model.group_np]
-    kd = model.group_kd.to_numpy().astype(np.float64)[model.group_np]
+    group, pairs = model.group_np, model.pairs_np  # each a download: take them once
+    k = model.group_k.to_numpy().astype(np.float64)[group]
+    kd = model.group_kd.to_numpy().astype(np.float64)[group]
     inv_m = np.where(model.mass_np > 0, 1.0 / model.mass_np, 0.0)
-    return model.pairs_np[:, 0], model.pairs_np[:, 1], model.rest_np, k, kd, inv_m
+    return pairs[:, 0], pairs[:, 1], model.rest_np, k, kd, inv_m
 
 
 class NumpyStepper:

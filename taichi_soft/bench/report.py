@@ -1,7 +1,7 @@
-"""``python main.py bench accuracy|stability|speed|report``: measure, then write CSV, PNG and Markdown.
+"""``python main.py bench accuracy|stability|speed|memory|report``: measure, then write CSV, PNG and Markdown.
 
 Each study returns plain rows (dicts); ``write_*`` functions turn rows into files. ``report``
-runs all three and writes ``REPORT.md`` beside the CSVs and plots. ``quick`` shrinks every study
+runs all four and writes ``REPORT.md`` beside the CSVs and plots. ``quick`` shrinks every study
 (tiny cubes, few steps) so the whole report runs in a few minutes on 2 cores; its numbers check
 the machinery, not the physics at full size.
 
@@ -312,6 +312,19 @@ def write_speed(result: dict, out_dir: Path) -> list[str]:
     return files + ["speed.csv", "speed.json"]
 
 
+# -- memory ------------------------------------------------------------------------------------------------
+def run_memory(quick: bool, progress=None) -> dict:
+    """Peak memory per size, one subprocess each (bench/memory.py)."""
+    from . import memory
+
+    return memory.run(quick, progress)
+
+
+def write_memory(result: dict, out_dir: Path) -> list[str]:
+    write_csv(result["rows"], out_dir / "memory.csv")
+    return ["memory.csv"]
+
+
 # -- Markdown ------------------------------------------------------------------------------------------------
 def _fmt(x, spec=".3g"):
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
@@ -416,11 +429,11 @@ def speed_markdown(result: dict) -> str:
 
 
 def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | None, speed: dict | None,
-                 seconds: float) -> Path:
+                 seconds: float, mem: dict | None = None) -> Path:
     info = machine.describe()
     parts = ["# taichi-soft benchmark report", "",
              f"Command: `{command}` ({seconds / 60:.1f} min)", "", "Machine:", "", machine.markdown(info)]
-    if any(r and r.get("interrupted") for r in (acc, stab, speed)):
+    if any(r and r.get("interrupted") for r in (acc, stab, speed, mem)):
         parts += ["**Interrupted (Ctrl-C): the tables hold what was measured before the stop.**", ""]
     failed = {k: v for r in (acc, stab) if r for k, v in r.get("failed", {}).items()}
     if failed:
@@ -432,6 +445,10 @@ def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | Non
         parts.append(stability_markdown(stab))
     if speed:
         parts.append(speed_markdown(speed))
+    if mem:
+        from .memory import markdown as memory_markdown
+
+        parts.append(memory_markdown(mem))
     path = out_dir / "REPORT.md"
     path.write_text("\n".join(parts) + "\n")
     return path

@@ -69,7 +69,7 @@ def run_info(sim) -> RunInfo:
     """The overlay labels of a ``Simulation``: stiffness and damping read from the model's fields
     (so values changed at run time show), as one value or a range over bodies and spring kinds."""
     m = sim.model
-    return RunInfo(sim.scene.name, sim.integrator_name, sim.dt,
+    return RunInfo(sim.scene.label, sim.integrator_name, sim.dt,
                    value_range(m.group_k.to_numpy(), "N/m"), value_range(m.group_kd.to_numpy(), "N s/m"))
 
 

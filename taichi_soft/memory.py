@@ -1,0 +1,266 @@
+"""Memory model: how many bytes a run needs, from its particle and spring counts, before it starts.
+
+``estimate(scene_data, integrator, precision, arch)`` splits a run's peak resident memory into
+
+* a base: the Python process with numpy and the Taichi runtime, its kernels compiled
+  (``BASE_BYTES``, measured: see below);
+* fields: every Taichi field the model, the state and the integrator allocate, counted per
+  particle and per spring in ``FIELDS`` (``tests/test_memory.py`` checks the table against the
+  fields a real run allocates, so a new field that is not counted here fails a test);
+* host arrays the model keeps (``x0_np``, ``v0_np``, ``mass_np``: 56 bytes per particle), the
+  surface triangles (O(n^2)), copies made when a state is set in f32, and recorded states.
+
+On the CPU backend fields live in host memory; on GPU backends they are device memory and the
+host keeps only the base and the host arrays. ``check_fits`` compares the estimate with
+``available_bytes`` and refuses, with one line, what cannot fit. The CLI calls it before
+Taichi starts. Not modelled: rendering (GGUI buffers, a few bytes per surface vertex plus the
+Vulkan driver) and the demo window.
+
+Measured on the 2-core, 24 GB CPU machine (``python main.py bench memory``, docs/benchmarks):
+the estimate is within a few per cent of the peak resident memory for n >= 40.
+"""
+from __future__ import annotations
+
+import math
+import subprocess
+from dataclasses import dataclass
+
+from .errors import UserError
+
+# Peak resident memory [bytes] of a tiny run (n = 3, a few steps) per integrator on this machine's
+# CPU backend: the process, numpy, the Taichi runtime and the compiled kernels. The midpoint of a
+# run that compiles its kernels (empty offline cache) and one that loads them from the cache
+# (MB, cold / warm): semi-implicit Euler 146 / 130, RK4 159 / 134, implicit Euler 206 / 144,
+# fast mass-spring 182 / 146; explicit Euler and midpoint lie between semi-implicit and RK4.
+_MB = 2**20
+BASE_BYTES = {
+    "semi_implicit_euler": 138 * _MB,
+    "explicit_euler": 138 * _MB,
+    "midpoint": 142 * _MB,
+    "rk4": 147 * _MB,
+    "implicit_euler": 175 * _MB,
+    "fast_mass_spring": 164 * _MB,
+}
+BASE_BYTES_OTHER = 175 * _MB  # an integrator not in the table: the largest base above
+# GPU backends: not measured here (no GPU on the machine this was written on). Assumed: the
+# CUDA/Vulkan driver adds this much host memory, and the device holds this much besides the
+# fields (context, Taichi's runtime pool).
+GPU_HOST_EXTRA_BYTES = 512 * _MB
+GPU_DEVICE_BASE_BYTES = 1536 * _MB
+
+
+@dataclass(frozen=True)
+class FieldCounts:
+    """Field entries of one run: reals (f32 or f64) and 4-byte ints, per particle and per spring."""
+
+    particle_reals: int = 0
+    particle_ints: int = 0
+    spring_reals: int = 0
+    spring_ints: int = 0
+
+    def __add__(self, other: "FieldCounts") -> "FieldCounts":
+        return FieldCounts(*(a + b for a, b in zip(self.astuple(), other.astuple())))
+
+    def astuple(self):
+        return (self.particle_reals, self.particle_ints, self.spring_reals, self.spring_ints)
+
+    def bytes(self, n_particles: int, n_springs: int, real_bytes: int) -> int:
+        return (n_particles * (self.particle_reals * real_bytes + self.particle_ints * 4)
+                + n_springs * (self.spring_reals * real_bytes + self.spring_ints * 4))
+
+
+# What each part allocates (the source files are the truth; the test keeps this table honest).
+FIELDS = {
+    # model.py: mass, inv_mass; adj_offset, adj_split | spring_rest, adj_rest (2 per spring);
+    # spring_ends (2), spring_group, adj_other, adj_group, adj_spring (2 each per spring)
+    "model": FieldCounts(2, 2, 3, 9),
+    "state": FieldCounts(6, 0, 0, 0),  # x, v
+    "per_spring": FieldCounts(0, 0, 3, 0),  # forces.py: spring_f, only for the per-spring strategy
+    # integrators/explicit.py
+    "semi_implicit_euler": FieldCounts(3, 0, 0, 0),  # a
+    "explicit_euler": FieldCounts(9, 0, 0, 0),  # kv[0], xs, vs (xs, vs unused by a 1-stage method)
+    "midpoint": FieldCounts(15, 0, 0, 0),  # kx[1], kv[0..1], xs, vs
+    "rk4": FieldCounts(27, 0, 0, 0),  # kx[1..3], kv[0..3], xs, vs
+    # integrators/implicit.py: 9 vec3 + lam + fric_hess (3x3) per particle, active + trial_active;
+    # spring_dir, spring_grad per spring
+    "implicit": FieldCounts(37, 2, 6, 0),
+    "implicit_euler": FieldCounts(9 + 12, 0, 9, 0),  # precond (3x3), PCG r z p q | spring_hess (3x3)
+    "fast_mass_spring": FieldCounts(1 + 12, 0, 0, 0),  # diag, PCG r z p q
+    "cholesky": FieldCounts(3, 2, 0, 0),  # linalg.SkylineCholesky: tmp, start, offset (+ the envelope)
+}
+EXPLICIT = ("semi_implicit_euler", "explicit_euler", "midpoint", "rk4")
+IMPLICIT = ("implicit_euler", "fast_mass_spring")
+HOST_PARTICLE_BYTES = 56  # model.x0_np, v0_np (float64 vec3) and mass_np (float64)
+
+
+def scene_counts(scene_data: dict) -> tuple[int, int]:
+    """(particles, springs) of a validated scene, from the body sizes alone."""
+    from .lattice import spring_count  # imports Taichi: only once the CLI has set it up quietly
+
+    ns = [int(b["n"]) for b in scene_data["body"]]
+    return sum(n**3 for n in ns), sum(spring_count(n) for n in ns)
+
+
+def _serial(scene_data: dict, arch: str, n_particles: int) -> bool:
+    """Whether the integrator launches serially (and so uses the per-spring force strategy)."""
+    from .integrators.base import SERIAL_MAX_PARTICLES
+
+    mode = scene_data.get("solver", {}).get("mode", "auto")
+    if mode == "auto":
+        return arch == "cpu" and n_particles <= SERIAL_MAX_PARTICLES
+    return mode == "serial"
+
+
+def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
+    """Values of fast_mass_spring's skyline Cholesky factor, 0 when it solves with PCG only."""
+    if integrator != "fast_mass_spring":
+        return 0
+    from .integrators.implicit import CHOLESKY_AUTO_MAX
+    from .lattice import envelope_size
+
+    solver = scene_data.get("solver", {}).get("global_solver", "auto")
+    if solver == "pcg" or (solver == "auto" and arch != "cpu"):
+        return 0
+    nnz = sum(envelope_size(int(b["n"])) for b in scene_data["body"])
+    return nnz if solver == "cholesky" or nnz <= CHOLESKY_AUTO_MAX else 0
+
+
+def _envelope_transient(scene_data: dict, integrator: str, n_p: int, n_s: int, real: int) -> int:
+    """Host bytes above the fields while fast_mass_spring sizes its Cholesky envelope (CPU backend).
+
+    It downloads the spring ends (8 bytes per spring) and takes their min and max (4 + 4), with
+    per-particle starts (16 bytes), after the implicit base fields are allocated and before its
+    own buffers and the state are: the peak is the larger of the two moments.
+    """
+    if integrator != "fast_mass_spring" or scene_data.get("solver", {}).get("global_solver", "auto") == "pcg":
+        return 0
+    later = (FIELDS["fast_mass_spring"] + FIELDS["state"]).bytes(n_p, n_s, real)
+    return max(0, 16 * n_s + 16 * n_p - later)
+
+
+def field_counts(integrator: str, serial: bool, cholesky: bool = False) -> FieldCounts:
+    """Per-particle and per-spring field entries of the model, state and ``integrator``
+    (an unknown name counts as the largest explicit one); ``cholesky``: with the factor's
+    index fields (its values are counted by ``_cholesky_values``)."""
+    counts = FIELDS["model"] + FIELDS["state"] + FIELDS.get(integrator, FIELDS["rk4"])
+    if integrator in IMPLICIT:
+        counts = counts + FIELDS["implicit"]
+    if cholesky:
+        counts = counts + FIELDS["cholesky"]
+    if serial:
+        counts = counts + FIELDS["per_spring"]
+    return counts
+
+
+def resolve_arch(arch: str) -> str:
+    """The backend ``arch`` will run on, as far as can be told before Taichi starts."""
+    if arch == "auto":
+        return "cuda" if _nvidia_free_bytes() is not None else "cpu"
+    return arch
+
+
+def estimate(scene_data: dict, integrator, precision: str, arch: str, record_states: bool = False) -> dict:
+    """Peak memory [bytes] of a run: {"host", "device", "fields", "particles", "springs"}.
+
+    ``integrator``: a name, a list of names (``compare`` runs one simulation per name in one
+    process), or None for the scene's. ``device`` is 0 on the CPU backend (fields count as host).
+    ``record_states``: ``run --states`` keeps every output frame's x and v, then stacks them.
+    """
+    names = [scene_data["sim"]["integrator"]] if integrator is None else (
+        [integrator] if isinstance(integrator, str) else list(integrator))
+    arch = resolve_arch(arch)
+    real = 8 if precision == "f64" else 4
+    n_p, n_s = scene_counts(scene_data)
+    serial = _serial(scene_data, arch, n_p)
+    fields = 0
+    for name in names:
+        nnz = _cholesky_values(scene_data, name, arch)
+        fields += field_counts(name, serial, nnz > 0).bytes(n_p, n_s, real) + nnz * real
+        fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
+    base = max(BASE_BYTES.get(name, BASE_BYTES_OTHER) for name in names)
+    n_surface = sum(12 * (int(b["n"]) - 1) ** 2 for b in scene_data["body"])
+    host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + n_surface * 3 * 8)
+    if real == 4:
+        host += n_p * 2 * 3 * real  # State.set converts the float64 x0_np, v0_np to f32 copies
+    if record_states:
+        sim = scene_data["sim"]
+        frames = math.floor(sim["duration"] * scene_data["render"]["fps"]) + 2
+        host += 2 * frames * n_p * 2 * 3 * real  # the frames kept, and their stacked copy when written
+    device = 0
+    if arch == "cpu":
+        host += fields + max(_envelope_transient(scene_data, name, n_p, n_s, real) for name in names)
+    else:
+        host += GPU_HOST_EXTRA_BYTES
+        device = GPU_DEVICE_BASE_BYTES + fields
+    return {"host": host, "device": device, "fields": fields, "particles": n_p, "springs": n_s, "arch": arch}
+
+
+def estimate_bytes(scene_data: dict, integrator, precision: str, arch: str) -> int:
+    """Peak resident host bytes of a run, plus device bytes on GPU backends (see ``estimate``)."""
+    e = estimate(scene_data, integrator, precision, arch)
+    return e["host"] + e["device"]
+
+
+def _host_available_bytes() -> int | None:
+    """MemAvailable [bytes] from /proc/meminfo, lowered to the cgroup's headroom if it has a limit."""
+    try:
+        with open("/proc/meminfo") as f:
+            info = {line.split(":")[0]: line.split()[1] for line in f}
+        avail = int(info["MemAvailable"]) * 1024
+    except (OSError, KeyError, ValueError, IndexError):
+        return None
+    try:
+        with open("/sys/fs/cgroup/memory.max") as f:
+            limit = f.read().strip()
+        if limit != "max":
+            with open("/sys/fs/cgroup/memory.current") as f:
+                avail = min(avail, int(limit) - int(f.read().strip()))
+    except (OSError, ValueError):
+        pass
+    return avail
+
+
+def _nvidia_free_bytes() -> int | None:
+    """Free memory [bytes] of the first CUDA device as nvidia-smi reports it, None without one."""
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=memory.free", "--format=csv,noheader,nounits", "-i", "0"],
+                             capture_output=True, text=True, timeout=20)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    try:
+        return int(float(out.stdout.split()[0])) * _MB if out.returncode == 0 else None
+    except (ValueError, IndexError):
+        return None
+
+
+def available_bytes(arch: str) -> int | None:
+    """Memory [bytes] a run on ``arch`` may use: host MemAvailable for cpu; free device memory for
+    cuda (nvidia-smi); None where it cannot be told (vulkan, metal, no nvidia-smi)."""
+    arch = resolve_arch(arch)
+    if arch == "cpu":
+        return _host_available_bytes()
+    if arch == "cuda":
+        return _nvidia_free_bytes()
+    return None
+
+
+def _gb(b: int) -> str:
+    return f"{b / 1e9:.2f} GB" if b < 10e9 else f"{b / 1e9:.1f} GB"
+
+
+def check_fits(scene_data: dict, integrator, precision: str, arch: str, record_states: bool = False):
+    """Raise ``UserError`` (one line: the estimate and what is available) if the run cannot fit.
+
+    Host memory is always checked (where /proc/meminfo tells it); device memory on GPU backends
+    where ``available_bytes`` can tell it. Does not start Taichi.
+    """
+    e = estimate(scene_data, integrator, precision, arch, record_states)
+    what = f"{e['particles']:,} particles, {e['springs']:,} springs, {precision}"
+    checks = [("host", e["host"], _host_available_bytes())]
+    if e["device"]:
+        checks.append((f"{e['arch']} device", e["device"], available_bytes(e["arch"])))
+    for where, need, have in checks:
+        if have is not None and need > have:
+            hint = " or --precision f32" if precision == "f64" else ""
+            raise UserError(f"the bodies need about {_gb(need)} of {where} memory ({what}) but {_gb(have)} is available; "
+                            f"use smaller bodies (body.N.n){hint}")
