@@ -413,7 +413,7 @@ def cmd_bench(args) -> int:
     print(f"wrote {len(files)} files to {out_dir}: {md}")
     failed = {k: v for r in (acc, stab) if r for k, v in r["failed"].items()}
     for key, err in failed.items():
-        print(f"bench {args.study}: task {key} FAILED (retried once): {err}", file=sys.stderr)
+        print(f"bench {args.study}: task {key} FAILED after 2 attempts: {err}", file=sys.stderr)
     if any(r and r["interrupted"] for r in (acc, stab, speed, mem)):
         return 130
     return EXIT_TASKS_FAILED if failed else EXIT_OK

@@ -8,7 +8,7 @@ the machinery, not the physics at full size.
 The accuracy and stability sweeps are independent runs dispatched as tasks
 (``taichi_soft.tasks``: each in a fresh process, ``--workers N`` local processes or a Dask
 ``--scheduler``); their wall-time columns are measured under whatever else runs at the same time,
-so publish timings from ``--workers 1`` on a quiet machine. The speed study always runs serially,
+so publish timings from ``--workers 1`` on a quiet machine. The speed and memory studies always run serially,
 one configuration at a time, for the same reason. A sweep interrupted with Ctrl-C stops and still
 writes what it measured, marked as interrupted; a task that failed twice is listed as failed.
 """
