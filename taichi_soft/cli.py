@@ -2,8 +2,9 @@
 
 Exit status: 0 success, 2 bad input (one line on stderr, nothing overwritten), 3 the run
 diverged (summary and states so far are still written), 4 an output could not be written (one
-line per output; each keeps its old file), 130 / 143 / 129 interrupted by SIGINT / SIGTERM /
-SIGHUP (nothing half-written is left).
+line per output; each keeps its old file), 5 a sweep's task failed twice (the others' outputs are
+still written), 130 / 143 / 129 interrupted by SIGINT / SIGTERM / SIGHUP (nothing half-written is
+left; a sweep keeps what finished).
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from .errors import OutputError, Terminated, UserError
 from .memory import check_fits
 from .outfiles import probe_writable, write_atomic
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT = 0, 2, 3, 4
+EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, EXIT_TASKS_FAILED = 0, 2, 3, 4, 5
 # The main job (`python main.py`): the assignment's cube dropped on the plane.
 DEFAULT_SCENE, DEFAULT_INTEGRATOR = "plane", "rk4"
 DEFAULT_COMPARE = "explicit_euler,semi_implicit_euler,midpoint,rk4"
@@ -199,7 +200,7 @@ def cmd_list(args) -> int:
 def cmd_run(args) -> int:
     import numpy as np
 
-    from .progress import Progress
+    from .progress import CountBar
     from .simulation import Simulation, states_arrays
 
     scene = load_scene_from_args(args)
@@ -219,11 +220,11 @@ def cmd_run(args) -> int:
 
         # Opens the offscreen window first: no Vulkan fails here, before any simulation.
         n_frames = frame_count(duration, sim.dt, fps)
-        bar = Progress(n_frames, label)
+        bar = CountBar(n_frames, label, unit="frame")
         recorder = FrameRecorder(sim, render_options,
                                  progress=lambda k, s: bar.update(k, f"frame {k}/{n_frames} t={s.time:6.3f}s"))
     else:
-        bar = Progress(int(round(duration / sim.dt)), label)
+        bar = CountBar(int(round(duration / sim.dt)), label, unit="step")
         step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
     try:
         result = sim.run(duration, fps, on_frame=recorder, record=states_path is not None, progress=step_progress)
@@ -317,7 +318,7 @@ def parse_integrator_list(text: str) -> list[str]:
 
 
 def cmd_compare(args) -> int:
-    from .progress import Progress
+    from .progress import CountBar
 
     integrators = parse_integrator_list(args.integrators)
     scene = load_scene_from_args(args)
@@ -331,7 +332,7 @@ def cmd_compare(args) -> int:
 
     comparison = Comparison(scene, integrators, render_options)
     n_frames = frame_count(scene.sim["duration"], comparison.dt, render_options.fps)
-    bar = Progress(n_frames, f"{scene.label}: {', '.join(integrators)}")
+    bar = CountBar(n_frames, f"{scene.label}: {', '.join(integrators)}", unit="frame")
     try:
         results = comparison.run(scene.sim["duration"],
                                  progress=lambda k, t: bar.update(k, f"frame {k}/{n_frames} t={t:6.3f}s"))
@@ -356,7 +357,8 @@ def cmd_bench(args) -> int:
     import time
 
     from . import runtime
-    from .progress import Progress
+    from .progress import CountBar
+    from .tasks import make_executor
 
     if args.study == "speed-worker":  # internal: one (arch, precision) per process, JSON on stdout
         from .bench.report import run_speed_worker
@@ -364,34 +366,40 @@ def cmd_bench(args) -> int:
         runtime.init(args.arch, args.precision, kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
+    if args.study in ("speed", "memory") and (args.workers is not None or args.scheduler is not None):
+        raise UserError(f"bench {args.study} runs one configuration at a time (its measurements need a quiet "
+                        "machine); --workers/--scheduler apply to the accuracy and stability sweeps")
     default = "out/benchmarks-quick" if args.quick else "docs/benchmarks"
     out_dir = check_output_dir(args.out or default, "--out")
+    # Before any work: an unreachable --scheduler is refused here, in a few seconds.
+    executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
     out_dir.mkdir(parents=True, exist_ok=True)
-    runtime.init("cpu", "f64")
     from .bench import report
-
-    bar = Progress(1, f"bench {args.study}")
-
-    def progress(done, total, what):
-        bar.total = max(total, 1)
-        bar.update(done, what[:60], force=True)
 
     start = time.perf_counter()
     acc = stab = speed = mem = None
     files = []
-    if args.study in ("accuracy", "report"):
-        acc = report.run_accuracy(args.quick, progress)
-        files += report.write_accuracy(acc, out_dir)
-    if args.study in ("stability", "report") and not (acc and acc["interrupted"]):
-        stab = report.run_stability(args.quick, progress)
-        files += report.write_stability(stab, out_dir)
+    try:
+        if args.study in ("accuracy", "report"):
+            acc = report.run_accuracy(args.quick, executor)
+            files += report.write_accuracy(acc, out_dir)
+        if args.study in ("stability", "report") and not (acc and acc["interrupted"]):
+            stab = report.run_stability(args.quick, executor)
+            files += report.write_stability(stab, out_dir)
+    finally:
+        if executor is not None:
+            executor.close()
     if args.study in ("speed", "report") and not any(r and r["interrupted"] for r in (acc, stab)):
-        speed = report.run_speed(args.quick, progress)
+        runtime.init("cpu", "f64")  # speed_configs asks Taichi which backends this machine has
+        bar = CountBar(1, "bench speed", unit="config")
+        speed = report.run_speed(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
+        bar.close()
         files += report.write_speed(speed, out_dir)
     if args.study in ("memory", "report") and not any(r and r["interrupted"] for r in (acc, stab, speed)):
-        mem = report.run_memory(args.quick, progress)
+        bar = CountBar(1, "bench memory", unit="size")
+        mem = report.run_memory(args.quick, lambda done, total, what: bar.update(done, str(what)[:60], total=total))
+        bar.close()
         files += report.write_memory(mem, out_dir)
-    bar.close()
     command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
     name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
     md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem)
@@ -403,8 +411,66 @@ def cmd_bench(args) -> int:
             orders = ", ".join(f"{k} {v:.2f}" for k, v in data["orders"].items() if v is not None)
             print(f"fitted orders ({case}): {orders}")
     print(f"wrote {len(files)} files to {out_dir}: {md}")
-    interrupted = any(r and r["interrupted"] for r in (acc, stab, speed, mem))
-    return 130 if interrupted else EXIT_OK
+    failed = {k: v for r in (acc, stab) if r for k, v in r["failed"].items()}
+    for key, err in failed.items():
+        print(f"bench {args.study}: task {key} FAILED after 2 attempts: {err}", file=sys.stderr)
+    if any(r and r["interrupted"] for r in (acc, stab, speed, mem)):
+        return 130
+    return EXIT_TASKS_FAILED if failed else EXIT_OK
+
+
+def cmd_gallery(args) -> int:
+    """``gallery``: every terrain x integrator video, a compare mosaic per terrain, index.html."""
+    from .bench.report import TERRAINS
+    from .gallery import PAGE, Plan, check_plan, run_gallery
+    from .render.outputs import check_video_size
+    from .scene import scene_names
+    from .tasks import make_executor, report_failures
+
+    terrains = [t.strip() for t in (args.terrains or ",".join(TERRAINS)).split(",") if t.strip()]
+    shipped = scene_names()
+    for t in terrains:
+        if t not in shipped:
+            raise UserError(f"--terrains: unknown scene {t!r}; choose from: {', '.join(shipped)}")
+    if not terrains or len(set(terrains)) != len(terrains):
+        raise UserError(f"--terrains {args.terrains!r}: give distinct scene names separated by commas")
+    from .integrators import names
+
+    integrators = parse_integrator_list(args.integrators or ",".join(names()))
+    for flag, value in (("--duration", args.duration), ("--dt", args.dt)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise UserError(f"{flag} {value:g}: must be a positive number of seconds")
+    from .gallery import DEFAULT_RESOLUTION
+
+    resolution = tuple(args.resolution or DEFAULT_RESOLUTION)
+    check_video_size(Path("gallery.mp4"), *resolution)
+    out = check_output_dir(args.out, "--out")
+    plan = Plan(terrains, integrators, args.duration, resolution, args.dt, list(args.set), out)
+    scene_dts = check_plan(plan)  # every scene and --set checked before any task
+    executor = make_executor(args.workers, args.scheduler)
+    try:
+        outcome = run_gallery(plan, executor, scene_dts)
+    finally:
+        executor.close()
+    report_failures(outcome, "gallery")
+    done = len(outcome.results)
+    print(f"gallery: {done} of {len(outcome.attempts)} videos in {outcome.wall_seconds:.1f} s on {executor.where}")
+    print(f"page: {out / PAGE}")
+    if outcome.interrupted:
+        return 130
+    return EXIT_TASKS_FAILED if outcome.failed else EXIT_OK
+
+
+def add_task_args(p: argparse.ArgumentParser):
+    """--workers / --scheduler: where a sweep's independent runs go (docs/gallery.md)."""
+    from .tasks import default_workers
+
+    g = p.add_argument_group("execution (each run a fresh process; docs/gallery.md)")
+    g.add_argument("--workers", type=int, metavar="N",
+                   help=f"run N tasks at a time in local processes (default: all cores, {default_workers()} here)")
+    g.add_argument("--scheduler", metavar="ADDRESS",
+                   help="send the tasks to an existing Dask cluster, e.g. tcp://10.0.0.5:8786 "
+                        "(start it with `dask scheduler`, workers with `dask worker ADDRESS`)")
 
 
 def cmd_demo(args) -> int:
@@ -449,9 +515,23 @@ def build_parser() -> argparse.ArgumentParser:
                          help="what to measure; report runs all four and writes REPORT.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
+    add_task_args(p_bench)
     p_bench.add_argument("--arch", default="cpu", help=argparse.SUPPRESS)
     p_bench.add_argument("--precision", default="f64", help=argparse.SUPPRESS)
     p_bench.set_defaults(func=cmd_bench)
+    p_gal = sub.add_parser("gallery", help="every terrain x integrator video, a compare mosaic per terrain, "
+                                              "and an index.html that shows them all")
+    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl)")
+    p_gal.add_argument("--integrators", metavar="A,B", help="comma-separated integrator names (default: all registered)")
+    p_gal.add_argument("--duration", type=_float_arg("--duration"), help="simulated time [s] (default: each scene's)")
+    p_gal.add_argument("--dt", type=_float_arg("--dt"),
+                       help="time step [s] for every run (default: the scene's for explicit methods, 1/60 s for implicit)")
+    p_gal.add_argument("--resolution", type=_resolution_arg, metavar="WxH",
+                       help="size of each run's video (default 640x360; the compare mosaics are twice as wide and high)")
+    p_gal.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override for every run (repeatable)")
+    p_gal.add_argument("--out", default="out/gallery", help="output folder (default: out/gallery)")
+    add_task_args(p_gal)
+    p_gal.set_defaults(func=cmd_gallery)
     p_list = sub.add_parser("list", help="list scenes, integrators and backends")
     p_list.set_defaults(func=cmd_list)
     return parser

@@ -1,38 +1,48 @@
-"""A dependency-free progress bar on stderr: drawn on a terminal, silent when piped."""
+"""Progress bars on stderr, drawn by tqdm: on a terminal only (silent when stderr is piped).
+
+``CountBar`` follows a count (frames of one run, configurations of the speed study);
+``TaskBar`` follows a sweep of tasks (``taichi_soft.tasks``): done / running / failed and ETA.
+"""
 from __future__ import annotations
 
 import sys
-import time
+
+from tqdm import tqdm
 
 
-class Progress:
-    """``Progress(total, label)``; call ``update(done, extra="")`` and ``close()``."""
+class CountBar:
+    """``CountBar(total, label)``; ``update(done, extra="")`` with the absolute count; ``close()``."""
 
-    def __init__(self, total: int, label: str = "", stream=None, enabled: bool | None = None):
-        self.total = max(int(total), 1)
-        self.label = label
-        self.stream = stream or sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self.start = time.perf_counter()
-        self._last_draw = 0.0
+    def __init__(self, total: int, label: str = "", unit: str = "it", enabled: bool | None = None):
+        # disable=None: tqdm turns itself off when stderr is not a terminal
+        self.bar = tqdm(total=max(int(total), 1), desc=label, unit=unit, file=sys.stderr, leave=True,
+                        disable=None if enabled is None else not enabled, dynamic_ncols=True)
 
-    def update(self, done: int, extra: str = "", force: bool = False):
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if not force and now - self._last_draw < 0.1 and done < self.total:
-            return
-        self._last_draw = now
-        frac = min(done / self.total, 1.0)
-        elapsed = now - self.start
-        eta = elapsed / frac - elapsed if frac > 0 else float("nan")
-        width = 28
-        bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
-        eta_text = f"ETA {eta:5.1f}s" if eta == eta else "ETA   ?  "
-        self.stream.write(f"\r{self.label} [{bar}] {100 * frac:5.1f}% {extra} {eta_text} ")
-        self.stream.flush()
+    def update(self, done: int, extra: str = "", total: int | None = None):
+        if total is not None and total != self.bar.total:
+            self.bar.total = max(int(total), 1)
+        if extra:
+            self.bar.set_postfix_str(extra, refresh=False)
+        self.bar.update(done - self.bar.n)
 
     def close(self):
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
+        self.bar.close()
+
+
+class TaskBar:
+    """A bar over a sweep's tasks; finished = done + failed, the postfix gives all three counts."""
+
+    def __init__(self, total: int, label: str = "tasks", enabled: bool | None = None):
+        self.bar = tqdm(total=total, desc=label, unit="task", file=sys.stderr, leave=True,
+                        disable=None if enabled is None else not enabled, dynamic_ncols=True)
+
+    def show(self, done: int, running: int, failed: int, advance: bool = False):
+        self.bar.set_postfix_str(f"done {done}, running {running}, failed {failed}", refresh=False)
+        self.bar.update(done + failed - self.bar.n)
+        if not advance:
+            self.bar.refresh()  # the running count changes without the bar moving
+
+    def close(self, done: int, failed: int, interrupted: bool):
+        if interrupted:
+            self.bar.set_postfix_str(f"done {done}, failed {failed}, interrupted", refresh=False)
+        self.bar.close()

@@ -60,27 +60,41 @@ def run_case(case: str, sweeps: dict, frames: int = 10, repeats: int = 3, progre
 
     One reference for all: RK4 at a step 10 times smaller than the smallest swept. Returns
     ``(rows, interrupted)``; Ctrl-C stops the sweep and returns the rows measured so far.
+    (``bench`` runs the same pieces, ``reference`` and ``measure_integrator``, as separate tasks.)
     """
-    scene_name, sets, t_end = CASES[case]
-    scene = load_scene(scene_name, sets)
-    dt_ref = min(min(d) for d in sweeps.values()) / 10
-    m_ref = math.ceil((t_end / frames) / dt_ref)
-    ref_sim = Simulation(scene, integrator="rk4", dt=(t_end / frames) / m_ref)
-    ref, _ = trajectory(ref_sim, t_end, frames)
+    ref, dt_ref = reference(case, min(min(d) for d in sweeps.values()), frames)
     rows = []
-    jobs = [(name, dt) for name, dts in sweeps.items() for dt in dts]
-    sims = {}
+    total = sum(len(d) for d in sweeps.values())
     try:
-        for k, (name, dt) in enumerate(jobs):
-            if name not in sims:
-                sims[name] = Simulation(scene, integrator=name, dt=dt)
-                sims[name].advance(1)  # warm-up: Taichi compiles on the first call
-            rows.append(_measure(sims[name], case, name, dt, t_end, frames, repeats, ref, ref_sim.dt))
-            if progress:
-                progress(k + 1, len(jobs), f"{case} {name} dt={dt:.2e}")
+        for name, dts in sweeps.items():
+            rows.extend(measure_integrator(case, name, dts, ref, dt_ref, frames, repeats, progress, len(rows), total))
     except KeyboardInterrupt:
         return rows, True
     return rows, False
+
+
+def reference(case: str, dt_min: float, frames: int = 10) -> tuple[np.ndarray, float]:
+    """RK4 trajectory [frames + 1, particles, 3] of ``case`` at a step dividing the frame interval,
+    at most ``dt_min / 10`` [s]; returns (trajectory, its dt)."""
+    scene_name, sets, t_end = CASES[case]
+    m_ref = math.ceil((t_end / frames) / (dt_min / 10))
+    ref_sim = Simulation(load_scene(scene_name, sets), integrator="rk4", dt=(t_end / frames) / m_ref)
+    ref, _ = trajectory(ref_sim, t_end, frames)
+    return ref, ref_sim.dt
+
+
+def measure_integrator(case: str, name: str, dts, ref, dt_ref: float, frames: int = 10, repeats: int = 3,
+                       progress=None, done: int = 0, total: int = 0) -> list[dict]:
+    """One row per dt of ``name`` on ``case`` against the reference trajectory ``ref``."""
+    scene_name, sets, t_end = CASES[case]
+    sim = Simulation(load_scene(scene_name, sets), integrator=name, dt=dts[0])
+    sim.advance(1)  # warm-up: Taichi compiles on the first call
+    rows = []
+    for dt in dts:
+        rows.append(_measure(sim, case, name, dt, t_end, frames, repeats, ref, dt_ref))
+        if progress:
+            progress(done + len(rows), total, f"{case} {name} dt={dt:.2e}")
+    return rows
 
 
 def _measure(sim, case, name, dt, t_end, frames, repeats, ref, dt_ref) -> dict:

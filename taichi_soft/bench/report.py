@@ -5,7 +5,12 @@ runs all four and writes ``REPORT.md`` beside the CSVs and plots. ``quick`` shri
 (tiny cubes, few steps) so the whole report runs in a few minutes on 2 cores; its numbers check
 the machinery, not the physics at full size.
 
-A sweep interrupted with Ctrl-C stops and still writes what it measured, marked as interrupted.
+The accuracy and stability sweeps are independent runs dispatched as tasks
+(``taichi_soft.tasks``: each in a fresh process, ``--workers N`` local processes or a Dask
+``--scheduler``); their wall-time columns are measured under whatever else runs at the same time,
+so publish timings from ``--workers 1`` on a quiet machine. The speed and memory studies always run serially,
+one configuration at a time, for the same reason. A sweep interrupted with Ctrl-C stops and still
+writes what it measured, marked as interrupted; a task that failed twice is listed as failed.
 """
 from __future__ import annotations
 
@@ -33,23 +38,22 @@ TERRAINS = ("plane", "tilted_plane", "sphere", "bowl")
 DT_LO = 2.5e-4  # [s] lower end of each bisection: every method here is stable at it on the default cube
 
 
-class Interrupted(Exception):
-    """Raised inside a sweep after Ctrl-C; the rows gathered so far travel with it."""
+def _sweep(tasks, executor, label):
+    """Run ``tasks`` on ``executor`` -> (rows in task order, interrupted, {task key: error})."""
+    from ..tasks import LocalExecutor, run_tasks
 
-
-def _sweep(jobs, run_one, progress, label):
-    """Run ``run_one(job)`` for each job; Ctrl-C stops the sweep and keeps what was done."""
-    rows, interrupted = [], False
-    for k, job in enumerate(jobs):
-        try:
-            result = run_one(job)
-        except KeyboardInterrupt:
-            interrupted = True
-            break
+    outcome = run_tasks(tasks, executor or LocalExecutor(1), label=label)
+    rows = []
+    for result in outcome.results.values():
         rows.extend(result if isinstance(result, list) else [result])
-        if progress:
-            progress(k + 1, len(jobs), f"{label}: {job}")
-    return rows, interrupted
+    return rows, outcome.interrupted, outcome.failed
+
+
+def _task_runtime():
+    """Inside a task's fresh process: the Taichi runtime every study here uses."""
+    from .. import runtime
+
+    runtime.init("cpu", "f64")
 
 
 def write_csv(rows: list[dict], path: Path):
@@ -65,18 +69,45 @@ def write_csv(rows: list[dict], path: Path):
 
 
 # -- accuracy -------------------------------------------------------------------------------------------
-def run_accuracy(quick: bool, progress=None) -> dict:
+def run_accuracy(quick: bool, executor=None) -> dict:
+    """Work-precision of every integrator on each case: one reference task per case, then one task
+    per (case, integrator) against it."""
+    from ..tasks import Task
+
     count = 3 if quick else 6
     frames = 10
-    out = {"cases": {}, "interrupted": False}
-    for case, (_, _, t_end) in accuracy.CASES.items():
-        sweeps = {name: accuracy.step_sizes(t_end, frames, DT_CAP.get(name, DT_CAP_IMPLICIT), count) for name in REGISTRY}
-        rows, interrupted = accuracy.run_case(case, sweeps, frames=frames, repeats=1 if quick else 3, progress=progress)
-        out["cases"][case] = {"rows": rows, "orders": {name: accuracy.fitted_order(rows, name) for name in REGISTRY}}
-        if interrupted:
-            out["interrupted"] = True
-            break
+    repeats = 1 if quick else 3
+    out = {"cases": {}, "interrupted": False, "failed": {}}
+    sweeps = {case: {name: accuracy.step_sizes(t_end, frames, DT_CAP.get(name, DT_CAP_IMPLICIT), count) for name in REGISTRY}
+              for case, (_, _, t_end) in accuracy.CASES.items()}
+    refs, out["interrupted"], out["failed"] = _sweep(
+        [Task(f"reference/{case}", "taichi_soft.bench.report:accuracy_reference_task",
+              {"case": case, "dt_min": min(min(d) for d in sw.values()), "frames": frames}) for case, sw in sweeps.items()],
+        executor, "accuracy references")
+    refs = {r["case"]: r for r in refs}
+    if out["interrupted"]:
+        return out
+    tasks = [Task(f"{case}/{name}", "taichi_soft.bench.report:accuracy_task",
+                  {"case": case, "name": name, "dts": dts, "ref": refs[case]["ref"], "dt_ref": refs[case]["dt_ref"],
+                   "frames": frames, "repeats": repeats})
+             for case, sw in sweeps.items() if case in refs for name, dts in sw.items()]
+    rows, out["interrupted"], failed = _sweep(tasks, executor, "accuracy")
+    out["failed"].update(failed)
+    for case in refs:
+        case_rows = [r for r in rows if r["case"] == case]
+        out["cases"][case] = {"rows": case_rows, "orders": {name: accuracy.fitted_order(case_rows, name) for name in REGISTRY}}
     return out
+
+
+def accuracy_reference_task(case: str, dt_min: float, frames: int) -> dict:
+    _task_runtime()
+    ref, dt_ref = accuracy.reference(case, dt_min, frames)
+    return {"case": case, "ref": ref, "dt_ref": dt_ref}
+
+
+def accuracy_task(case: str, name: str, dts, ref, dt_ref: float, frames: int, repeats: int) -> list[dict]:
+    _task_runtime()
+    return accuracy.measure_integrator(case, name, dts, ref, dt_ref, frames, repeats)
 
 
 def write_accuracy(result: dict, out_dir: Path) -> list[str]:
@@ -93,45 +124,55 @@ def write_accuracy(result: dict, out_dir: Path) -> list[str]:
 
 
 # -- stability ---------------------------------------------------------------------------------------------
-def run_stability(quick: bool, progress=None) -> dict:
+def run_stability(quick: bool, executor=None, names=None) -> dict:
     """Largest stable dt per integrator x terrain (default stiffness), then per integrator x stiffness on
-    the plane, and the wall time to simulate 1 s at each method's largest stable dt."""
-    names = list(REGISTRY)
-    sets = ["body.0.n=4", "body.0.size=2.0", "body.0.center=[0, 3, 0]"] if quick else []
-    horizon = 1.0 if quick else 2.0
+    the plane, and the wall time to simulate 1 s at each method's largest stable dt.
+
+    One task per (integrator, terrain) and one per integrator's stiffness sweep; ``names`` limits
+    the integrators (default: all registered)."""
+    from ..tasks import Task
+
+    names = list(names or REGISTRY)
+    cfg = {"sets": ["body.0.n=4", "body.0.size=2.0", "body.0.center=[0, 3, 0]"] if quick else [],
+           "horizon": 1.0 if quick else 2.0, "rel_tol": 0.1 if quick else 0.03, "hi": 0.1}
     scales = (1.0, 10.0) if quick else (1.0, 3.0, 10.0, 30.0, 100.0)
     terrains = ("plane",) if quick else TERRAINS
-    rel_tol = 0.1 if quick else 0.03
-    hi = 0.1
+    tasks = [Task(f"terrain/{n}/{t}", "taichi_soft.bench.report:stability_terrain_task", dict(cfg, name=n, terrain=t))
+             for n in names for t in terrains]
+    tasks += [Task(f"stiffness/{n}", "taichi_soft.bench.report:stability_stiffness_task", dict(cfg, name=n, scales=scales))
+              for n in names]
+    rows, interrupted, failed = _sweep(tasks, executor, "stability")
+    def part(sweep):  # the tag only routes rows back; the CSVs keep their columns
+        return [{k: v for k, v in r.items() if k != "sweep"} for r in rows if r["sweep"] == sweep]
 
-    def terrain_job(job):
-        name, terrain = job
-        probe = stability.SceneProbe(terrain, name, sets, horizon=horizon)
-        res = stability.largest_stable_dt(probe, DT_LO, hi, rel_tol=rel_tol)
-        return {"integrator": name, "terrain": terrain, "stiffness_scale": 1.0, **_flat(res)}
-
-    terrain_rows, interrupted = _sweep([(n, t) for n in names for t in terrains], terrain_job, progress,
-                                       "stability terrain")
-    sweep_rows = []
-    if not interrupted:
-        def stiffness_job(name):
-            probe = stability.SceneProbe("plane", name, sets, horizon=horizon)
-            rows, prev = [], None
-            for scale in scales:
-                probe.set_stiffness_scale(scale)
-                # stable dt of an explicit method scales like 1/sqrt(k): bracket around the last answer
-                lo = DT_LO if prev is None else prev / 4
-                res = stability.largest_stable_dt(probe, lo, hi, rel_tol=rel_tol)
-                row = {"integrator": name, "terrain": "plane", "stiffness_scale": scale, **_flat(res)}
-                row["wall_s_per_sim_s"] = _wall_per_second(probe, res["dt"]) if res["dt"] else None
-                rows.append(row)
-                prev = res["dt"] or prev
-            return rows
-
-        sweep_rows, interrupted = _sweep(names, stiffness_job, progress, "stability stiffness")
-    return {"terrain_rows": terrain_rows, "stiffness_rows": sweep_rows, "interrupted": interrupted,
-            "criteria": {"horizon_s": horizon, "energy_growth": 0.05, "max_penetration_m": 0.1, "dt_max_tried": hi},
+    return {"terrain_rows": part("terrain"), "stiffness_rows": part("stiffness"), "interrupted": interrupted,
+            "failed": failed,
+            "criteria": {"horizon_s": cfg["horizon"], "energy_growth": 0.05, "max_penetration_m": 0.1,
+                         "dt_max_tried": cfg["hi"]},
             "quick": quick}
+
+
+def stability_terrain_task(name, terrain, sets, horizon, rel_tol, hi) -> dict:
+    _task_runtime()
+    probe = stability.SceneProbe(terrain, name, sets, horizon=horizon)
+    res = stability.largest_stable_dt(probe, DT_LO, hi, rel_tol=rel_tol)
+    return {"sweep": "terrain", "integrator": name, "terrain": terrain, "stiffness_scale": 1.0, **_flat(res)}
+
+
+def stability_stiffness_task(name, sets, horizon, rel_tol, hi, scales) -> list[dict]:
+    _task_runtime()
+    probe = stability.SceneProbe("plane", name, sets, horizon=horizon)
+    rows, prev = [], None
+    for scale in scales:
+        probe.set_stiffness_scale(scale)
+        # stable dt of an explicit method scales like 1/sqrt(k): bracket around the last answer
+        lo = DT_LO if prev is None else prev / 4
+        res = stability.largest_stable_dt(probe, lo, hi, rel_tol=rel_tol)
+        row = {"sweep": "stiffness", "integrator": name, "terrain": "plane", "stiffness_scale": scale, **_flat(res)}
+        row["wall_s_per_sim_s"] = _wall_per_second(probe, res["dt"]) if res["dt"] else None
+        rows.append(row)
+        prev = res["dt"] or prev
+    return rows
 
 
 def _flat(res: dict) -> dict:
@@ -394,6 +435,10 @@ def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | Non
              f"Command: `{command}` ({seconds / 60:.1f} min)", "", "Machine:", "", machine.markdown(info)]
     if any(r and r.get("interrupted") for r in (acc, stab, speed, mem)):
         parts += ["**Interrupted (Ctrl-C): the tables hold what was measured before the stop.**", ""]
+    failed = {k: v for r in (acc, stab) if r for k, v in r.get("failed", {}).items()}
+    if failed:
+        parts += ["**Failed tasks (after one retry each): their rows are missing from the tables.**", ""]
+        parts += [f"* `{k}`: {v[:300]}" for k, v in failed.items()] + [""]
     if acc:
         parts.append(accuracy_markdown(acc))
     if stab:

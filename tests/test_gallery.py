@@ -1,0 +1,212 @@
+"""``python main.py gallery`` on a small grid (2 terrains x 2 integrators, 1 s, 320x240, 4^3 cube):
+the page, every video it links (playable, right frame count), the page in headless Chromium, and a
+failed task's cell and exit status."""
+import contextlib
+import io
+import json
+import shutil
+import subprocess
+from html.parser import HTMLParser
+from pathlib import Path
+from urllib.parse import urlparse
+
+import pytest
+
+from taichi_soft import cli
+
+HERE = Path(__file__).resolve().parent
+TERRAINS, INTEGRATORS = ["plane", "sphere"], ["semi_implicit_euler", "midpoint"]
+COLUMNS = INTEGRATORS + ["compare"]
+FPS, DURATION = 30, 1.0  # the shipped scenes' render.fps; frames at t = 0, 1/30, ..., 1 s
+SMALL = ["--terrains", ",".join(TERRAINS), "--integrators", ",".join(INTEGRATORS), "--duration", str(DURATION),
+         "--resolution", "320x240", "--set", "body.0.n=4"]
+CHROMIUM = ("chromium-headless-shell", "chromium")  # Debian packages; scripts/setup.sh installs the first
+
+
+def run_main(argv):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def gallery(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gallery")
+    code, stdout, stderr = run_main(["gallery", *SMALL, "--out", str(out), "--workers", "2"])
+    assert code == 0, stderr + stdout
+    return out, stdout
+
+
+class Page(HTMLParser):
+    """Links (href, src), video sources, figure ids and their text from the gallery page."""
+
+    def __init__(self):
+        super().__init__()
+        self.links, self.videos, self.cells, self._cell = [], [], {}, None
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        for k in ("href", "src"):
+            if a.get(k):
+                self.links.append(a[k])
+        if tag == "video":
+            self.videos.append(a["src"])
+        if tag == "figure":
+            self._cell = a["id"]
+            self.cells[self._cell] = ""
+
+    def handle_endtag(self, tag):
+        if tag == "figure":
+            self._cell = None
+
+    def handle_data(self, data):
+        if self._cell:
+            self.cells[self._cell] += data
+
+
+def parse(out: Path) -> Page:
+    page = Page()
+    page.feed((out / "index.html").read_text(encoding="utf-8"))
+    return page
+
+
+def test_page_links_are_relative_and_every_one_resolves(gallery):
+    out, stdout = gallery
+    page = parse(out)
+    assert "page: " in stdout and "6 of 6 videos" in stdout
+    assert sorted(page.videos) == sorted(f"{t}_{c}.mp4" for t in TERRAINS for c in COLUMNS)
+    for link in page.links:
+        u = urlparse(link)
+        assert not u.scheme and not u.netloc and not link.startswith("/"), f"not a relative link: {link}"
+        assert (out / u.path).is_file(), f"broken link: {link}"
+    assert json.loads((out / "gallery.json").read_text())["terrains"] == TERRAINS
+    assert not list(out.glob(".*")), "temporary files left behind"
+
+
+def test_captions_say_dt_stiffness_divergence_energy_and_wall_time(gallery):
+    out, _ = gallery
+    page = parse(out)
+    assert sorted(page.cells) == sorted(f"{t}-{c}" for t in TERRAINS for c in COLUMNS)
+    html = (out / "index.html").read_text()
+    assert html.count("<svg") == len(TERRAINS) * len(INTEGRATORS)  # one energy plot per run
+    for t in TERRAINS:
+        for c in INTEGRATORS:
+            text = page.cells[f"{t}-{c}"]
+            # 1 s of a drop from 9 m: nothing diverges, the scene's dt and stiffness are shown
+            for part in ("dt = 0.001 s", "k = 2000 N/m", "did not diverge", "final energy", "wall time", "31 frames"):
+                assert part in text, (t, c, part, text)
+        assert "all integrators at dt = 0.001 s" in page.cells[f"{t}-compare"]
+
+
+def test_every_video_is_playable_with_the_right_frame_count(gallery):
+    import imageio.v3 as iio
+
+    out, _ = gallery
+    for t in TERRAINS:
+        for c in COLUMNS:
+            frames = iio.imread(out / f"{t}_{c}.mp4")
+            size = (480, 640) if c == "compare" else (240, 320)
+            assert frames.shape == (round(DURATION * FPS) + 1, *size, 3), (t, c, frames.shape)
+            assert frames[0].std() > 5, "a blank frame"
+
+
+PROBE = """<script>
+(function () {
+  function report() {
+    var rect = function (e) { var r = e.getBoundingClientRect(); return {x: r.left, y: r.top, w: r.width, h: r.height}; };
+    var cells = Array.prototype.map.call(document.querySelectorAll("figure.cell"), function (f) {
+      var v = f.querySelector("video"); return {id: f.id, box: rect(f), video: v ? rect(v) : null}; });
+    var videos = Array.prototype.map.call(document.querySelectorAll("video"), function (v) {
+      return {src: v.getAttribute("src"), ready: v.readyState, w: v.videoWidth, h: v.videoHeight,
+              duration: v.duration, error: v.error ? v.error.code : null}; });
+    var pre = document.getElementById("probe") || document.body.appendChild(document.createElement("pre"));
+    pre.id = "probe"; pre.textContent = JSON.stringify({cells: cells, videos: videos});
+  }
+  document.querySelectorAll("video").forEach(function (v) {
+    v.addEventListener("loadeddata", report); v.addEventListener("error", report); });
+  report(); setTimeout(report, 3000);
+})();
+</script></body>"""
+
+
+def chromium() -> str:
+    for name in CHROMIUM:
+        path = shutil.which(name)
+        if path:
+            return path
+    pytest.fail("headless Chromium is not installed (Debian package chromium-headless-shell): run "
+                "`bash scripts/setup.sh`; the gallery page was NOT checked in a browser")
+
+
+def browse(binary, url, *extra):
+    cmd = [binary, "--headless", "--no-sandbox", "--disable-gpu", "--allow-file-access-from-files",
+           "--force-device-scale-factor=1", "--window-size=1400,1400", "--virtual-time-budget=6000", *extra, url]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+
+
+def test_page_in_headless_chromium_lays_out_the_grid_and_loads_the_videos(gallery, tmp_path):
+    import imageio.v3 as iio
+    import numpy as np
+
+    binary = chromium()
+    out, _ = gallery
+    probe = out / "probe.html"  # the page plus a script that reports layout and video state
+    probe.write_text((out / "index.html").read_text().replace("</body>", PROBE))
+    try:
+        p = browse(binary, probe.as_uri(), "--dump-dom")
+    finally:
+        probe.unlink()
+    assert p.returncode == 0, p.stderr[-2000:]
+    start = p.stdout.index('<pre id="probe">') + len('<pre id="probe">')
+    state = json.loads(__import__("html").unescape(p.stdout[start:p.stdout.index("</pre>", start)]))
+    for v in state["videos"]:
+        assert v["error"] is None and v["ready"] >= 2, f"video did not load in Chromium: {v}"
+        assert (v["w"], v["h"]) == ((640, 480) if "compare" in v["src"] else (320, 240)), v
+        assert abs(v["duration"] - DURATION) < 0.1, v
+    cells = {c["id"]: c for c in state["cells"]}
+    for r, t in enumerate(TERRAINS):  # rows terrains, columns integrators, left to right, no overlap
+        row = [cells[f"{t}-{c}"]["box"] for c in COLUMNS]
+        assert all(abs(b["y"] - row[0]["y"]) < 2 for b in row), row
+        assert all(a["x"] + a["w"] <= b["x"] for a, b in zip(row, row[1:])), row
+        assert all(b["w"] > 150 for b in row), row
+        if r:
+            above = cells[f"{TERRAINS[r - 1]}-{COLUMNS[0]}"]["box"]
+            assert row[0]["y"] >= above["y"] + above["h"], "rows overlap"
+    shot = tmp_path / "gallery.png"
+    p = browse(binary, (out / "index.html").as_uri(), f"--screenshot={shot}")
+    assert p.returncode == 0 and shot.is_file(), p.stderr[-2000:]
+    image = iio.imread(shot)[..., :3].astype(float)
+    for c in state["cells"]:  # each video's box in the screenshot shows a picture, not a blank
+        b = c["video"]
+        x0, y0 = int(b["x"]) + 2, int(b["y"]) + 2
+        crop = image[y0:min(y0 + int(b["h"]) - 4, image.shape[0]), x0:x0 + int(b["w"]) - 4]
+        assert crop.size and crop.std() > 10 and np.abs(crop - crop.mean(axis=(0, 1))).max() > 40, c["id"]
+
+
+def test_a_failed_task_gets_a_cell_and_a_non_zero_exit(tmp_path, monkeypatch):
+    """Both of one terrain's tasks replaced by one that raises: retried once, reported, exit 5."""
+    from taichi_soft import gallery
+    from taichi_soft.tasks import Task
+
+    real = gallery.build_tasks
+    monkeypatch.setenv("PYTHONPATH", str(HERE))
+    monkeypatch.setattr(gallery, "build_tasks", lambda plan, dts: [
+        Task(t.key, "task_helpers:fail", {"message": f"broken {t.key}"}) for t in real(plan, dts)])
+    code, stdout, stderr = run_main(["gallery", "--terrains", "plane", "--integrators", "rk4", "--duration", "0.1",
+                                     "--out", str(tmp_path), "--workers", "2"])
+    assert code == cli.EXIT_TASKS_FAILED
+    assert "task plane/rk4 FAILED after 2 attempts" in stderr and "broken plane/rk4" in stderr
+    assert "task plane/compare FAILED" in stderr and "0 of 2 videos" in stdout
+    cells = parse(tmp_path).cells
+    assert "broken plane/rk4" in cells["plane-rk4"] and "broken plane/compare" in cells["plane-compare"]
+    assert not list(tmp_path.glob("*.mp4"))
+
+
+def test_bad_gallery_input_exits_2_before_any_work(tmp_path):
+    for argv, text in ((["--terrains", "moon"], "unknown scene 'moon'"), (["--integrators", "euler9"], "euler9"),
+                       (["--resolution", "321x240"], "even"), (["--set", "body.0.n=0"], "body.0.n"),
+                       (["--duration", "-1"], "positive")):
+        code, _, err = run_main(["gallery", *argv, "--out", str(tmp_path / "g")])
+        assert code == 2 and text in err and len(err.strip().splitlines()) == 1, (argv, err)
+    assert not (tmp_path / "g").exists() or not any((tmp_path / "g").iterdir())

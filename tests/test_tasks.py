@@ -1,0 +1,121 @@
+"""The task executor (taichi_soft.tasks): retry, failure report, Ctrl-C, scheduler refusal, and
+the same sweep results from 1 or 2 local processes and from a Dask LocalCluster."""
+import _thread
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from taichi_soft import tasks
+from taichi_soft.tasks import LocalExecutor, Task, run_tasks
+
+HERE = Path(__file__).resolve().parent
+
+
+@pytest.fixture
+def helpers_on_path(monkeypatch):
+    monkeypatch.setenv("PYTHONPATH", str(HERE))
+
+
+def test_results_come_back_in_task_order_and_a_failure_is_retried_once_then_reported(helpers_on_path, tmp_path):
+    jobs = [Task(f"sq{k}", "task_helpers:square", {"x": k}) for k in range(4)]
+    jobs += [Task("flaky", "task_helpers:flaky", {"marker": str(tmp_path / "flaky")}),
+             Task("broken", "task_helpers:fail", {"message": "no such luck"})]
+    ex = LocalExecutor(2)
+    try:
+        out = run_tasks(jobs, ex, bar=False)
+    finally:
+        ex.close()
+    assert list(out.results) == ["sq0", "sq1", "sq2", "sq3", "flaky"]
+    assert [out.results[f"sq{k}"] for k in range(4)] == [0, 1, 4, 9]
+    assert out.results["flaky"] == "second attempt" and out.attempts["flaky"] == 2
+    assert list(out.failed) == ["broken"] and out.attempts["broken"] == 2
+    assert "no such luck" in out.failed["broken"] and "exit status 1" in out.failed["broken"]
+    assert not out.ok and not out.interrupted
+
+
+def test_ctrl_c_cancels_running_tasks_and_keeps_finished_ones(helpers_on_path, tmp_path):
+    jobs = [Task("quick", "task_helpers:square", {"x": 3}),
+            Task("slow", "task_helpers:slow", {"seconds": 60, "marker": str(tmp_path / "slow")})]
+    ex = LocalExecutor(2)
+    timer = threading.Timer(2.0, _thread.interrupt_main)  # what Ctrl-C does to the main thread
+    start = time.perf_counter()
+    timer.start()
+    try:
+        out = run_tasks(jobs, ex, bar=False)
+    finally:
+        timer.cancel()
+        ex.close()
+    assert out.interrupted and out.results == {"quick": 9} and not out.failed
+    assert time.perf_counter() - start < 15, "the slow task's process was not killed"
+    assert not (tmp_path / "slow").exists()
+    assert not tasks._live
+
+
+def test_unreachable_scheduler_is_refused_with_exit_2_in_a_few_seconds(capsys, tmp_path):
+    from taichi_soft import cli
+
+    start = time.perf_counter()
+    code = cli.main(["bench", "stability", "--quick", "--out", str(tmp_path / "b"), "--scheduler", "tcp://127.0.0.1:9"])
+    took = time.perf_counter() - start
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "--scheduler tcp://127.0.0.1:9" in err[0], err
+    assert took < tasks.CONNECT_TIMEOUT_S + 5
+    assert not (tmp_path / "b").exists() or not any((tmp_path / "b").iterdir())
+
+
+def test_workers_and_scheduler_exclude_each_other(capsys):
+    from taichi_soft import cli
+
+    assert cli.main(["gallery", "--workers", "2", "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    assert "exclude" in capsys.readouterr().err
+
+
+def _comparable(rows):
+    """Stability rows without the wall-time column (timing differs run to run; the physics must not)."""
+    return [{k: v for k, v in r.items() if k != "wall_s_per_sim_s"} for r in rows]
+
+
+def test_sweep_gives_the_same_rows_on_1_or_2_processes_and_on_a_dask_local_cluster():
+    """A quick stability sweep (one integrator: a terrain task and a stiffness task) three ways."""
+    from distributed import LocalCluster
+
+    from taichi_soft.bench import report
+    from taichi_soft.tasks import DaskExecutor
+
+    def sweep(executor):
+        try:
+            res = report.run_stability(True, executor, names=["semi_implicit_euler"])
+        finally:
+            executor.close()
+        assert not res["failed"] and not res["interrupted"]
+        return res
+
+    one = sweep(LocalExecutor(1))
+    two = sweep(LocalExecutor(2))
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        dask = sweep(DaskExecutor(cluster.scheduler_address))
+    assert len(one["terrain_rows"]) == 1 and len(one["stiffness_rows"]) == 2
+    assert one["terrain_rows"][0]["dt"] is not None
+    for other in (two, dask):
+        assert _comparable(other["terrain_rows"]) == _comparable(one["terrain_rows"])
+        assert _comparable(other["stiffness_rows"]) == _comparable(one["stiffness_rows"])
+
+
+def test_dask_retries_a_failed_task_once_then_reports_it(helpers_on_path, tmp_path):
+    from distributed import LocalCluster
+
+    from taichi_soft.tasks import DaskExecutor
+
+    jobs = [Task("sq", "task_helpers:square", {"x": 5}), Task("flaky", "task_helpers:flaky", {"marker": str(tmp_path / "f")}),
+            Task("broken", "task_helpers:fail", {})]
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        ex = DaskExecutor(cluster.scheduler_address)
+        try:
+            out = run_tasks(jobs, ex, bar=False)
+        finally:
+            ex.close()
+    assert out.results == {"sq": 25, "flaky": "second attempt"}
+    assert list(out.failed) == ["broken"] and "deliberate failure" in out.failed["broken"]
+    assert out.attempts == {"sq": 1, "flaky": 2, "broken": 2}
