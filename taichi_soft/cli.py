@@ -1,7 +1,9 @@
 """Command line: ``python main.py [run|list|...]``.
 
 Exit status: 0 success, 2 bad input (one line on stderr, nothing overwritten), 3 the run
-diverged (summary and states so far are still written).
+diverged (summary and states so far are still written), 4 an output could not be written (one
+line per output; each keeps its old file), 130 / 143 / 129 interrupted by SIGINT / SIGTERM /
+SIGHUP (nothing half-written is left).
 """
 from __future__ import annotations
 
@@ -9,14 +11,15 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 from pathlib import Path
 
-from .errors import UserError
+from .errors import OutputError, Terminated, UserError
 from .memory import check_fits
-from .outfiles import write_atomic
+from .outfiles import probe_writable, write_atomic
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED = 0, 2, 3
+EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT = 0, 2, 3, 4
 # The main job (`python main.py`): the assignment's cube dropped on the plane.
 DEFAULT_SCENE, DEFAULT_INTEGRATOR = "plane", "rk4"
 DEFAULT_COMPARE = "explicit_euler,semi_implicit_euler,midpoint,rk4"
@@ -66,6 +69,11 @@ def _check_parent(p: Path, flag: str, path: str):
         raise UserError(f"{flag} {path}: cannot create directory {parent}: {e.strerror}") from None
     if not os.access(parent, os.W_OK):
         raise UserError(f"{flag} {path}: directory {parent} is not writable")
+    try:
+        probe_writable(parent)
+    except (OSError, OutputError) as e:
+        reason = e.strerror if isinstance(e, OSError) else str(e)
+        raise UserError(f"{flag} {path}: cannot create files in {parent}: {reason}") from None
 
 
 def finite_or_none(obj):
@@ -157,13 +165,13 @@ def load_scene_from_args(args):
     from .integrators import names
     from .scene import load_scene
 
-    overrides = list(args.set)
+    flags = {}
     for flag, key in (("integrator", "sim.integrator"), ("dt", "sim.dt"), ("duration", "sim.duration"),
                       ("fps", "render.fps"), ("resolution", "render.resolution")):
         value = getattr(args, flag, None)
         if value is not None:
-            overrides.append(f"{key}={json.dumps(value) if isinstance(value, str) else repr(value)}")
-    return load_scene(args.scene, overrides, integrator_names=names())
+            flags[key] = (value, f"--{flag} {value if not isinstance(value, list) else 'x'.join(map(str, value))}")
+    return load_scene(args.scene, args.set, integrator_names=names(), flags=flags)
 
 
 def start_taichi(args):
@@ -203,7 +211,8 @@ def cmd_run(args) -> int:
     sim = Simulation(scene)
     duration = scene.sim["duration"]
     fps = scene.data["render"]["fps"]
-    label = f"{scene.name}/{sim.integrator_name}"
+    label = f"{scene.label}/{sim.integrator_name}"
+    _note_whole_steps(duration, sim.dt)
     recorder, step_progress = None, None
     if render_options.any:
         from .render.recorder import FrameRecorder, frame_count
@@ -218,34 +227,69 @@ def cmd_run(args) -> int:
         step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
     try:
         result = sim.run(duration, fps, on_frame=recorder, record=states_path is not None, progress=step_progress)
+    except OutputError as e:  # the video or frames failed part-way (full disk, encoder error): stop there
+        recorder.abort()
+        others = [f"--{name} {path}" for name, path in (("summary", summary_path), ("states", states_path)) if path]
+        raise OutputError(f"{e}; the run stopped at t = {sim.time:.3f} s" +
+                          (f", so {' and '.join(others)} {'was' if len(others) == 1 else 'were'} not written either"
+                           if others else "")) from None
     except BaseException:
         if recorder is not None:
             recorder.abort()
         raise
     finally:
         bar.close()
+    failures = []
+    written = []
     if recorder is not None:
-        recorder.finish()
+        try:
+            recorder.finish()
+            written += list(zip(("video", "frames", "meshes"), _render_paths(render_options)))
+        except OutputError as e:
+            failures.append(str(e))
     summary = sim.summary(result)
     if summary_path:
         text = json.dumps(finite_or_none(summary), indent=2)
-        write_atomic(summary_path, lambda tmp: Path(tmp).write_text(text + "\n"))
+        failures += _write_output("summary", summary_path, lambda tmp: Path(tmp).write_text(text + "\n"), written)
     if states_path:
         arrays = states_arrays(result.frames, sim.model.real)
-        write_atomic(states_path, lambda tmp: np.savez(open(tmp, "wb"), **arrays))
+
+        def save(tmp):
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+        failures += _write_output("states", states_path, save, written)
+    if not result.diverged:
+        f = summary["final"]
+        com = ", ".join(f"{c:.3f}" for c in f["center_of_mass"])
+        print(f"{scene.label}/{sim.integrator_name}: {result.steps} steps of {sim.dt:g} s = {result.sim_time:.3f} s "
+              f"simulated in {result.wall_seconds:.2f} s wall ({summary['steps_per_second']:.0f} steps/s); "
+              f"final centre of mass ({com}), kinetic energy {f['kinetic_energy']:.3g} J")
+    _print_outputs(written)
+    for line in failures:
+        print(f"error: {line}", file=sys.stderr)
     if result.diverged:
-        _print_outputs(zip(("video", "frames", "meshes"), _render_paths(render_options)))
         print(f"diverged at t = {result.diverged_at:.4f} s (step {result.diverged_step}) with {sim.integrator_name} "
               f"at dt = {sim.dt:g} s; try --dt {sim.suggest_dt():g} or a more stable integrator", file=sys.stderr)
         return EXIT_DIVERGED
-    f = summary["final"]
-    com = ", ".join(f"{c:.3f}" for c in f["center_of_mass"])
-    print(f"{scene.name}/{sim.integrator_name}: {result.steps} steps of {sim.dt:g} s = {result.sim_time:.3f} s simulated "
-          f"in {result.wall_seconds:.2f} s wall ({summary['steps_per_second']:.0f} steps/s); "
-          f"final centre of mass ({com}), kinetic energy {f['kinetic_energy']:.3g} J")
-    _print_outputs([("summary", summary_path), ("states", states_path),
-                    *zip(("video", "frames", "meshes"), _render_paths(render_options))])
-    return EXIT_OK
+    return EXIT_OUTPUT if failures else EXIT_OK
+
+
+def _note_whole_steps(duration: float, dt: float):
+    """Say what is simulated when the duration is not a whole number of steps."""
+    steps = max(int(round(duration / dt)), 1)
+    if abs(steps * dt - duration) > 1e-9 * duration:
+        print(f"note: simulating {steps} steps of {dt:g} s = {steps * dt:g} s (sim.duration {duration:g} s "
+              "is not a whole number of steps)", file=sys.stderr)
+
+
+def _write_output(label: str, path: Path, write, written: list) -> list[str]:
+    """Write one output atomically; on success add (label, path) to ``written``, else return its error."""
+    try:
+        write_atomic(path, write)
+    except OutputError as e:
+        return [f"{label}: {e}"]
+    written.append((label, path))
+    return []
 
 
 def _render_paths(options) -> list:
@@ -287,7 +331,7 @@ def cmd_compare(args) -> int:
 
     comparison = Comparison(scene, integrators, render_options)
     n_frames = frame_count(scene.sim["duration"], comparison.dt, render_options.fps)
-    bar = Progress(n_frames, f"{scene.name}: {', '.join(integrators)}")
+    bar = Progress(n_frames, f"{scene.label}: {', '.join(integrators)}")
     try:
         results = comparison.run(scene.sim["duration"],
                                  progress=lambda k, t: bar.update(k, f"frame {k}/{n_frames} t={t:6.3f}s"))
@@ -308,7 +352,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    """``bench accuracy|stability|speed|memory|report``: measure and write CSV, PNG and Markdown (docs/benchmarks.md)."""
+    """``bench accuracy|stability|speed|memory|report``: measure and write CSV, PNG and Markdown (docs/benchmarks/REPORT.md)."""
     import time
 
     from . import runtime
@@ -372,7 +416,7 @@ def cmd_demo(args) -> int:
     from .demo.app import run_demo
 
     run_demo(args.scene, args.set, args.integrator, args.dt, tuple(scene.data["render"]["resolution"]),
-             frames=args.frames, screenshot=screenshot)
+             frames=args.frames, screenshot=screenshot, paused=args.paused)
     return EXIT_OK
 
 
@@ -395,6 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_args(p_demo)
     p_demo.add_argument("--resolution", type=_resolution_arg, metavar="WxH", default=[1280, 800],
                         help="window size in pixels (default: 1280x800)")
+    p_demo.add_argument("--paused", action="store_true", help="start paused: Space plays (R also resets paused)")
     # Hidden, for tests and docs: render N frames, save the window to PATH, exit.
     p_demo.add_argument("--frames", type=int, help=argparse.SUPPRESS)
     p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
@@ -414,6 +459,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    previous = _catch_termination()
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -423,9 +469,31 @@ def main(argv=None) -> int:
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    except OutputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_OUTPUT
+    except KeyboardInterrupt as e:
+        signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
+        print(f"interrupted ({signal.Signals(signum).name}); no output was written or replaced", file=sys.stderr)
+        return 128 + signum
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _catch_termination() -> dict:
+    """SIGTERM and SIGHUP raise ``Terminated`` in the main thread (as SIGINT raises
+    KeyboardInterrupt), so a killed run drops its temporary files; returns the old handlers."""
+    def handler(signum, frame):
+        raise Terminated(signum)
+
+    previous = {}
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        try:
+            previous[signum] = signal.signal(signum, handler)
+        except ValueError:  # not the main thread (main() called from a worker): leave them
+            pass
+    return previous
 
 
 def main_job() -> int:

@@ -25,6 +25,7 @@ import math
 import subprocess
 from dataclasses import dataclass
 
+from . import collision
 from .errors import UserError
 
 # Peak resident memory [bytes] of a tiny run (n = 3, a few steps) per integrator on this machine's
@@ -177,6 +178,8 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
         nnz = _cholesky_values(scene_data, name, arch)
         fields += field_counts(name, serial, nnz > 0).bytes(n_p, n_s, real) + nnz * real
         fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
+    if len(scene_data["body"]) > 1:  # body-body contact: one per simulation
+        fields += len(names) * collision.field_bytes(n_p, real)
     base = max(BASE_BYTES.get(name, BASE_BYTES_OTHER) for name in names)
     n_surface = sum(12 * (int(b["n"]) - 1) ** 2 for b in scene_data["body"])
     host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + n_surface * 3 * 8)

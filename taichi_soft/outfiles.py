@@ -9,7 +9,7 @@ import os
 import secrets
 from pathlib import Path
 
-from .errors import UserError
+from .errors import OutputError
 
 
 def reserve_temp(path: Path) -> Path:
@@ -25,15 +25,36 @@ def reserve_temp(path: Path) -> Path:
             return tmp
         except FileExistsError:
             continue
-    raise UserError(f"cannot create a temporary file beside {path}")
+    raise OutputError(f"cannot create a temporary file beside {path}")
 
 
 def write_atomic(path: Path, write) -> None:
-    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it over ``path``."""
+    """Call ``write(tmp_path)`` on a temporary file beside ``path``, flush it to disk, then rename
+    it over ``path``. A failed write (full disk, ...) raises ``OutputError``; ``path`` is untouched."""
     tmp = reserve_temp(path)
     try:
         write(str(tmp))
+        fsync_file(tmp)
         os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"{path} was not written: {e.strerror or e}") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def fsync_file(path: Path) -> None:
+    """Force ``path``'s data to disk, so a full disk shows up here and not after the rename."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def probe_writable(directory: Path) -> None:
+    """Create and remove a file in ``directory``: the only sure test that an output can go there
+    (``os.access`` says yes for root in /proc and /sys). Raises ``OSError`` if not."""
+    tmp = reserve_temp(directory / "probe.tmp")
+    tmp.unlink()

@@ -14,27 +14,28 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import UserError
+from .model import BodySpec
+from .terrain import CONTACT_DEFAULTS
 from .terrain import DEFAULTS as TERRAIN_DEFAULTS
 from .terrain import KINDS as TERRAIN_KINDS
 
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 
 SIM_DEFAULTS = {"integrator": "semi_implicit_euler", "dt": 0.001, "duration": 5.0, "gravity": [0.0, -9.8, 0.0]}
-SPRING_DEFAULT = {"k": 2000.0, "damping": 60.0}
+# Body defaults: the fields of model.BodySpec (their one home) in the scene's layout.
+_SPEC = BodySpec()
+SPRING_DEFAULT = {"k": _SPEC.stretch[0], "damping": _SPEC.stretch[1]}
 BODY_DEFAULTS = {
-    "n": 10,
-    "size": 4.0,
-    "particle_mass": 1.0,
-    "center": [0.0, 9.0, 0.0],
-    "rotation": {"axis": [1.0, 0.0, 1.0], "degrees": 0.0},
-    "velocity": [0.0, 0.0, 0.0],
-    "angular_velocity": [0.0, 0.0, 0.0],
-    "initial_stretch": [1.0, 1.0, 1.0],
-    "stretch": dict(SPRING_DEFAULT),
-    "shear": dict(SPRING_DEFAULT),
-    "bend": dict(SPRING_DEFAULT),
+    "n": _SPEC.n,
+    "size": _SPEC.size,
+    "particle_mass": _SPEC.particle_mass,
+    "center": list(_SPEC.center),
+    "rotation": {"axis": list(_SPEC.rotation_axis), "degrees": _SPEC.rotation_degrees},
+    "velocity": list(_SPEC.velocity),
+    "angular_velocity": list(_SPEC.angular_velocity),
+    "initial_stretch": list(_SPEC.initial_stretch),
+    **{kind: {"k": getattr(_SPEC, kind)[0], "damping": getattr(_SPEC, kind)[1]} for kind in ("stretch", "shear", "bend")},
 }
-CONTACT_DEFAULTS = {"restitution": 0.8, "friction": 0.3, "epsilon": 0.01}
 RENDER_DEFAULTS = {"fps": 30, "resolution": [1280, 720], "camera": {}}
 CAMERA_KEYS = {"position", "lookat", "up", "fov"}
 TOP_KEYS = ("sim", "body", "terrain", "contact", "render", "solver")
@@ -68,8 +69,8 @@ def parse_value(text: str):
         return text
 
 
-def apply_override(data: dict, assignment: str):
-    """Apply one ``KEY=VALUE`` (dotted key; ``body.0.stretch.k=5000``) to the raw scene dict."""
+def parse_override(assignment: str) -> tuple[list[str], object]:
+    """``"body.0.stretch.k=5000"`` -> (["body", "0", "stretch", "k"], 5000.0); bad syntax raises ``UserError``."""
     if "=" not in assignment:
         raise UserError(f"--set {assignment!r}: expected KEY=VALUE, e.g. sim.dt=0.002")
     key, text = assignment.split("=", 1)
@@ -78,7 +79,42 @@ def apply_override(data: dict, assignment: str):
         raise UserError(f"--set {assignment!r}: empty part in key {key!r}")
     if parts[0] not in TOP_KEYS:
         raise UserError(f"--set {key}: unknown section {parts[0]!r}; sections are {', '.join(TOP_KEYS)}")
-    value = parse_value(text.strip())
+    return parts, parse_value(text.strip())
+
+
+def _flatten(parts: list[str], value) -> list[tuple[list[str], object]]:
+    """An inline-table value sets each of its keys: ``stretch={damping=5}`` is ``stretch.damping=5``
+    (merged into the table, never replacing it, so an earlier ``stretch.k`` is kept)."""
+    if isinstance(value, dict) and value:
+        out = []
+        for k, v in value.items():
+            out += _flatten(parts + [k], v)
+        return out
+    return [(parts, value)]
+
+
+def apply_overrides(data: dict, assignments) -> None:
+    """Apply ``--set KEY=VALUE`` assignments to the raw scene dict as one set, in any order.
+
+    ``terrain.kind`` is applied first (switching kind drops the old kind's geometry keys, so the
+    new kind's keys given beside it are kept whatever their order); inline tables merge key by
+    key; the same key given twice with different values is refused (``UserError``).
+    """
+    given: dict[tuple, tuple] = {}
+    for assignment in assignments:
+        parts, value = parse_override(assignment)
+        for p, v in _flatten(parts, value):
+            key = tuple(p)
+            if key in given and given[key][1] != v:
+                raise UserError(f"--set {'.'.join(p)} is given twice ({given[key][0]!r} and {assignment!r}); give it once")
+            given[key] = (assignment, v)
+    first = [k for k in given if k == ("terrain", "kind")]
+    for key in first + [k for k in given if k != ("terrain", "kind")]:
+        _set_path(data, list(key), given[key][1])
+
+
+def _set_path(data: dict, parts: list[str], value) -> None:
+    key = ".".join(parts)
     node = data
     for depth, part in enumerate(parts[:-1]):
         if isinstance(node, list):
@@ -86,6 +122,8 @@ def apply_override(data: dict, assignment: str):
         else:
             if parts[0] == "body" and depth == 0:
                 node = node.setdefault(part, [{}])
+                if not isinstance(node, list):
+                    node = data[part] = [node]
                 continue
             node = node.setdefault(part, {})
             if not isinstance(node, (dict, list)):
@@ -168,13 +206,16 @@ def validate(raw: dict, integrator_names=None) -> dict:
         raise UserError(f"sim.integrator = {sim['integrator']!r}: choose one of {', '.join(integrator_names)}")
     sim["dt"] = _positive("sim.dt", sim["dt"])
     sim["duration"] = _positive("sim.duration", sim["duration"])
+    if sim["dt"] > sim["duration"]:
+        raise UserError(f"sim.dt = {sim['dt']:g} s is longer than sim.duration = {sim['duration']:g} s: "
+                        "a run takes whole steps; use a smaller dt or a longer duration")
     sim["gravity"] = _vec3("sim.gravity", sim["gravity"])
 
-    bodies_raw = raw.get("body", [{}])
+    bodies_raw = raw.get("body", [])
     if isinstance(bodies_raw, dict):
         bodies_raw = [bodies_raw]
     if not isinstance(bodies_raw, list) or not bodies_raw:
-        raise UserError("body: the scene needs at least one [[body]] table")
+        raise UserError("the scene has no [[body]] table: it needs at least one body to simulate")
     bodies = []
     for b, given in enumerate(bodies_raw):
         key = f"body.{b}"
@@ -208,7 +249,10 @@ def validate(raw: dict, integrator_names=None) -> dict:
     if kind not in TERRAIN_KINDS:
         raise UserError(f"terrain.kind = {kind!r}: choose one of {', '.join(TERRAIN_KINDS)}")
     terrain = _merge({"kind": kind, **TERRAIN_DEFAULTS[kind]}, terrain_raw)
-    _check_keys(f"terrain ({kind})", terrain, {"kind", *TERRAIN_DEFAULTS[kind]})
+    for k in terrain:
+        if k != "kind" and k not in TERRAIN_DEFAULTS[kind]:
+            allowed = ", ".join(TERRAIN_DEFAULTS[kind]) or "none"
+            raise UserError(f"unknown key terrain.{k} for terrain kind {kind!r}; its keys are kind, {allowed}")
     for k in ("point", "center"):
         if k in terrain:
             terrain[k] = _vec3(f"terrain.{k}", terrain[k])
@@ -225,6 +269,9 @@ def validate(raw: dict, integrator_names=None) -> dict:
     contact["restitution"] = float(r)
     contact["friction"] = _nonneg("contact.friction", contact["friction"])
     contact["epsilon"] = _positive("contact.epsilon", contact["epsilon"])
+    contact["bounce_threshold"] = _nonneg("contact.bounce_threshold", contact["bounce_threshold"])
+    if not isinstance(contact["impact_friction"], bool):
+        raise UserError(f"contact.impact_friction = {contact['impact_friction']!r}: must be true or false")
 
     render = _merge(RENDER_DEFAULTS, _table("render", raw.get("render", {})))
     _check_keys("render", render, RENDER_DEFAULTS)
@@ -263,19 +310,32 @@ def parse_resolution(value, key="--resolution") -> list[int]:
 
 @dataclass
 class Scene:
-    """A validated scene: ``name`` (file stem), ``path`` and the normalised ``data`` dict."""
+    """A validated scene: ``name`` (file stem), ``path``, the normalised ``data`` dict and the
+    terrain kind the file itself gives (``file_kind``; overrides may change it)."""
 
     name: str
     path: Path | None
     data: dict
+    file_kind: str | None = None
 
     @property
     def sim(self) -> dict:
         return self.data["sim"]
 
+    @property
+    def label(self) -> str:
+        """What runs, for overlays and messages: the scene name, plus the terrain if an override
+        switched it (``plane, terrain sphere``)."""
+        kind = self.data["terrain"]["kind"]
+        return self.name if kind == self.file_kind else f"{self.name}, terrain {kind}"
 
-def load_scene(name_or_path: str, overrides=(), integrator_names=None) -> Scene:
-    """Read, override and validate a scene. Raises ``UserError`` on any problem."""
+
+def load_scene(name_or_path: str, overrides=(), integrator_names=None, flags=None) -> Scene:
+    """Read, override and validate a scene. Raises ``UserError`` on any problem.
+
+    ``overrides``: ``--set KEY=VALUE`` strings; ``flags``: {dotted key: (value, "--flag text")}
+    from dedicated command-line flags, applied after (and winning over) the overrides.
+    """
     path = resolve_scene_path(name_or_path)
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -283,17 +343,34 @@ def load_scene(name_or_path: str, overrides=(), integrator_names=None) -> Scene:
         raise UserError(f"scene {path}: malformed TOML: {e}") from None
     except (OSError, UnicodeDecodeError) as e:
         raise UserError(f"scene {path}: cannot read: {e}") from None
-    return scene_from_dict(raw, path.stem, path, overrides, integrator_names)
+    return scene_from_dict(raw, path.stem, path, overrides, integrator_names, flags)
 
 
-def scene_from_dict(raw: dict, name="custom", path=None, overrides=(), integrator_names=None) -> Scene:
-    """Validate a scene given as a dict (as parsed from TOML), after applying overrides."""
+def scene_from_dict(raw: dict, name="custom", path=None, overrides=(), integrator_names=None, flags=None) -> Scene:
+    """Validate a scene given as a dict (as parsed from TOML), after applying overrides and flags
+    (see ``load_scene``). An error caused by an override or flag names it; any other the scene.
+    """
     raw = copy.deepcopy(raw)
-    for assignment in overrides:
-        apply_override(raw, assignment)
-    where = f"scene {path}" if path else f"scene {name}"
+    terrain = raw.get("terrain", {"kind": "none"})
+    file_kind = terrain.get("kind", "plane") if isinstance(terrain, dict) else None
+    sources = {a.split("=", 1)[0].strip(): f"--set {a}" for a in overrides}
+    apply_overrides(raw, overrides)
+    for key, (value, text) in (flags or {}).items():
+        _set_path(raw, key.split("."), value)
+        sources[key] = text
     try:
         data = validate(raw, integrator_names)
     except UserError as e:
-        raise UserError(f"{where}: {e}") from None
-    return Scene(name, path, data)
+        raise UserError(f"{_blame(str(e), sources, path or name)}: {e}") from None
+    return Scene(name, path, data, file_kind)
+
+
+def _blame(message: str, sources: dict, where) -> str:
+    """Which input an error message is about: the override or flag whose key it names first, else the scene."""
+    hits = []
+    for key, text in sources.items():
+        for pattern in (f"{key} ", f"{key}.", f"{key}:", f"key {key}"):
+            at = message.find(pattern)
+            if at >= 0 and (at == 0 or not message[at - 1].isalnum() and message[at - 1] not in "._"):
+                hits.append((at, text))
+    return min(hits)[1] if hits else f"scene {where}"

@@ -11,8 +11,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .collision import BodyContacts, contact_radii
+from .errors import UserError
+from .lattice import rotation_matrix
 from .forces import Diagnostics
-from .integrators import REGISTRY, make_integrator
+from .integrators import make_integrator
 from .model import BodySpec, ModelBuilder
 from .scene import Scene
 from .terrain import make_terrain
@@ -77,13 +80,17 @@ class Simulation:
         self.integrator_name = integrator or data["sim"]["integrator"]
         if options is None:
             options = data.get("solver", {})
+        # Body-body contact only where there are bodies to collide: a one-body scene compiles none.
+        self.contacts = BodyContacts(self.model, self.terrain) if len(self.model.bodies) > 1 else None
         self.integrator = make_integrator(self.integrator_name, self.model, self.terrain, options)
+        self.integrator.contacts = self.contacts
         self.diagnostics = Diagnostics(self.model, self.terrain)
         self.state = self.model.state()
         self.dt = float(dt if dt is not None else data["sim"]["dt"])
         self.steps = 0
         self.diverged_step: int | None = None
         self.reset()
+        check_start(self)
 
     # -- clock ---------------------------------------------------------------------------
     @property
@@ -105,6 +112,8 @@ class Simulation:
         self.state.set(self.model.x0_np, self.model.v0_np)
         self.terrain.reset(self.state.x)
         self.integrator.reset()
+        if self.contacts is not None:
+            self.contacts.reset()
         self.steps = 0
         self.steps_base = 0
         self.time_base = 0.0
@@ -116,6 +125,7 @@ class Simulation:
         if isinstance(integrator, str):
             integrator = make_integrator(integrator, self.model, self.terrain, self.scene.data.get("solver", {}))
         integrator.reset()
+        integrator.contacts = self.contacts
         self.integrator = integrator
         self.integrator_name = integrator.name
 
@@ -198,13 +208,38 @@ class Simulation:
             "diverged_at": result.diverged_at,
             "wall_seconds": result.wall_seconds,
             "steps_per_second": result.steps / result.wall_seconds if result.wall_seconds > 0 else None,
-            "integrator_stats": self.integrator.stats(),
+            "integrator_stats": {**self.integrator.stats(), **(self.contacts.stats() if self.contacts else {})},
             "final": {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in final.items()},
         }
 
 
-def integrator_names() -> list[str]:
-    return list(REGISTRY)
+def check_start(sim: Simulation):
+    """Refuse (``UserError``) a start state with a body inside the terrain or inside another body."""
+    d = sim.terrain.signed_distances(sim.state.x)
+    for b, body in enumerate(sim.model.bodies):
+        depth = -float(d[body.particles].min())
+        if depth > 0:
+            raise UserError(f"body.{b} starts {depth:.3g} m inside the terrain ({sim.terrain.kind}); "
+                            f"move it out (body.{b}.center)")
+    radii = contact_radii(sim.model)
+    x0 = sim.model.x0_np
+    for b, body in enumerate(sim.model.bodies):
+        for a in range(b):
+            depth = overlap_depth(sim.model.bodies[a].spec, x0[body.particles], radii[sim.model.bodies[a].particles][0],
+                                  radii[body.particles][0])
+            if depth > 0:
+                raise UserError(f"body.{b} starts {depth:.3g} m inside body.{a} (particles of different bodies "
+                                f"must start at least their contact distance apart); move them apart (body.{b}.center)")
+
+
+def overlap_depth(spec: BodySpec, points: np.ndarray, radius: float, point_radius: float) -> float:
+    """How deep [m] the deepest of ``points`` lies inside the box of body ``spec`` grown by the
+    contact distance (radius + point_radius); 0 if none is inside."""
+    rot = rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
+    q = (points - np.asarray(spec.center)) @ rot  # in the body's axes
+    half = 0.5 * spec.size * np.asarray(spec.initial_stretch) + radius + point_radius
+    depth = (half - np.abs(q)).min(axis=1)
+    return float(max(depth.max(), 0.0))
 
 
 def states_arrays(frames: list, real) -> dict:

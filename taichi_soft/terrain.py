@@ -2,7 +2,7 @@
 
 Each terrain class compiles only its own geometry (a scene with a plane compiles no sphere
 code): kernels call ``terrain.query(i, x)``, which is a ``ti.func`` of the concrete class.
-Contact model (after the seed, see REFERENCE.md):
+Contact model (after the seed, the course assignment this project grew from; see README "Contact"):
 
 * detection: signed distance d < epsilon to the surface, with the normal N pointing to the side
   the particle belongs on;
@@ -10,16 +10,28 @@ Contact model (after the seed, see REFERENCE.md):
   friction of magnitude mu |N . f| opposes tangential sliding; it may stop a particle, never
   reverse it (``contact_accel``);
 * after each step, penetrating particles are projected back to the surface and an approaching
-  normal velocity is reflected with restitution: v' = -kr v_N + v_T (``respond``).
+  normal velocity v_N is removed (``respond``): reflected with restitution (v_N' = -kr v_N) only
+  when the approach speed exceeds ``bounce_threshold``, else stopped (resting contact: a particle
+  lying on the surface must not hop, or friction acts only part of the time); with
+  ``impact_friction`` the tangential velocity is reduced by mu times the normal velocity change
+  (Coulomb friction on the impact impulse), never reversed.
 
-Parameters (restitution, friction, epsilon, geometry) live in 0-d fields so they can be tuned
-between steps without recompiling.
+The seed's exact model (every approach reflected, v' = -kr v_N + v_T) is ``bounce_threshold = 0``
+and ``impact_friction = false``. Parameters (restitution, friction, epsilon, threshold, geometry)
+live in 0-d fields so they can be tuned between steps without recompiling.
 """
 
 import numpy as np
 import taichi as ti
 
 KINDS = ("none", "plane", "tilted_plane", "sphere", "bowl")
+
+# Contact coefficients (the scene's [contact] table); the one home of their defaults.
+# bounce_threshold: 1 m/s as in Box2D (b2_velocityThreshold): slower impacts are inelastic. It is
+# far below this project's drops (a cube falling 8 m hits at ~12.5 m/s) and far above the
+# sub-mm/s jitter of a particle resting on the surface.
+CONTACT_DEFAULTS = {"restitution": 0.8, "friction": 0.3, "epsilon": 0.01,
+                    "bounce_threshold": 1.0, "impact_friction": True}
 
 # Geometry parameters each terrain kind accepts, with defaults from the assignment.
 DEFAULTS = {
@@ -42,21 +54,28 @@ class Terrain:
     kind = "base"
     has_contact = True
 
-    def __init__(self, n_particles: int, restitution=0.8, friction=0.3, epsilon=0.01):
+    def __init__(self, n_particles: int, **contact):
         self.n_particles = n_particles
         self.restitution = ti.field(float, ())  # kr in [0, 1]
         self.friction = ti.field(float, ())  # Coulomb mu >= 0
         self.epsilon = ti.field(float, ())  # contact detection distance [m]
-        self.set_contact(restitution, friction, epsilon)
+        self.bounce_threshold = ti.field(float, ())  # slowest approach [m/s] that bounces
+        self.impact_friction = ti.field(ti.i32, ())  # 1: Coulomb friction on the impact impulse
+        self.set_contact(**{**CONTACT_DEFAULTS, **contact})
 
-    def set_contact(self, restitution=None, friction=None, epsilon=None):
-        """Set restitution [-], friction coefficient [-] and contact distance epsilon [m]."""
+    def set_contact(self, restitution=None, friction=None, epsilon=None, bounce_threshold=None, impact_friction=None):
+        """Set restitution [-], friction coefficient [-], contact distance epsilon [m], bounce
+        threshold [m/s] and whether friction acts on the impact impulse (bool)."""
         if restitution is not None:
             self.restitution[None] = restitution
         if friction is not None:
             self.friction[None] = friction
         if epsilon is not None:
             self.epsilon[None] = epsilon
+        if bounce_threshold is not None:
+            self.bounce_threshold[None] = bounce_threshold
+        if impact_friction is not None:
+            self.impact_friction[None] = int(bool(impact_friction))
 
     def reset(self, x: ti.template()):
         """Called when a state is (re)initialised; shapes with per-particle memory override it."""
@@ -64,6 +83,20 @@ class Terrain:
     def params(self) -> dict:
         """Geometry parameters as plain Python values (for renderers and summaries)."""
         return {}
+
+    def signed_distances(self, x) -> np.ndarray:
+        """Signed distance [m] of every particle at positions ``x`` (a vec3 field) to the surface,
+        negative inside the terrain (call after ``reset``: the bowl's answer depends on it)."""
+        out = np.full(self.n_particles, np.inf)
+        if self.has_contact:
+            self._k_distances(x, out)
+        return out
+
+    @ti.kernel
+    def _k_distances(self, x: ti.template(), out: ti.types.ndarray()):
+        for i in range(self.n_particles):
+            d, _ = self.query(i, x[i])
+            out[i] = d
 
     @ti.func
     def post_step(self, i, x):
@@ -92,16 +125,33 @@ class Terrain:
 
     @ti.func
     def respond(self, i, x, v):
-        """Project a penetrating particle to the surface and reflect its approaching velocity."""
+        """Project a penetrating particle to the surface and remove its approaching velocity.
+
+        Approach speeds above ``bounce_threshold`` [m/s] are reflected with restitution, slower
+        ones stopped; with ``impact_friction`` the tangential velocity loses mu |dv_N| (at most
+        all of it).
+        """
         d, n = self.query(i, x)
         if d < 0:
             x -= d * n
         if d < self.epsilon[None]:
             vn = n.dot(v)
             if vn < 0:
-                v -= (1.0 + self.restitution[None]) * vn * n
+                v = self.impact(v, n, vn)
         self.post_step(i, x)
         return x, v
+
+    @ti.func
+    def impact(self, v, n, vn):
+        """Velocity after an impact with approach velocity vn = v . n < 0 along unit normal n."""
+        kr = self.restitution[None] * ti.cast(-vn > self.bounce_threshold[None], float)
+        vt = v - vn * n
+        if self.impact_friction[None]:
+            t = vt.norm()
+            if t > 0:
+                # Coulomb: the tangential impulse is at most mu times the normal one, dv_N = -(1 + kr) vn.
+                vt *= ti.max(0.0, 1.0 - self.friction[None] * (1.0 + kr) * (-vn) / t)
+        return vt - kr * vn * n
 
 
 class NoTerrain(Terrain):
@@ -120,8 +170,11 @@ class Plane(Terrain):
 
     kind = "plane"
 
-    def __init__(self, n_particles, point=(0.0, -1.0, 0.0), normal=(0.0, 1.0, 0.0), **contact):
+    def __init__(self, n_particles, point=None, normal=None, **contact):
         super().__init__(n_particles, **contact)
+        geometry = DEFAULTS[self.kind]
+        point = geometry["point"] if point is None else point
+        normal = geometry["normal"] if normal is None else normal
         self.point = ti.Vector.field(3, float, ())
         self.normal = ti.Vector.field(3, float, ())
         self.set_geometry(point, normal)
@@ -147,8 +200,7 @@ class TiltedPlane(Plane):
 
     kind = "tilted_plane"
 
-    def __init__(self, n_particles, point=(0.0, 0.0, 0.0), normal=(1.0, 1.0, 0.0), **contact):
-        super().__init__(n_particles, point, normal, **contact)
+    # Its default geometry (origin, normal (1, 1, 0): 45 degrees) comes from DEFAULTS[kind].
 
 
 class Sphere(Terrain):
@@ -156,8 +208,11 @@ class Sphere(Terrain):
 
     kind = "sphere"
 
-    def __init__(self, n_particles, center=(0.0, -1.0, 0.0), radius=3.0, **contact):
+    def __init__(self, n_particles, center=None, radius=None, **contact):
         super().__init__(n_particles, **contact)
+        geometry = DEFAULTS[self.kind]
+        center = geometry["center"] if center is None else center
+        radius = geometry["radius"] if radius is None else radius
         self.center = ti.Vector.field(3, float, ())
         self.radius = ti.field(float, ())
         self.set_geometry(center, radius)
@@ -192,7 +247,7 @@ class Bowl(Sphere):
 
     kind = "bowl"
 
-    def __init__(self, n_particles, center=(2.0, 7.0, 1.0), radius=7.0, **contact):
+    def __init__(self, n_particles, center=None, radius=None, **contact):
         super().__init__(n_particles, center, radius, **contact)
         self.inside = ti.field(ti.i8, n_particles)  # 1 = inside the bowl, 0 = outside
 
@@ -244,8 +299,8 @@ class Bowl(Sphere):
 CLASSES = {"none": NoTerrain, "plane": Plane, "tilted_plane": TiltedPlane, "sphere": Sphere, "bowl": Bowl}
 
 
-def make_terrain(kind: str, n_particles: int, geometry: dict, restitution: float, friction: float,
-                 epsilon: float) -> Terrain:
-    """Build the terrain of ``kind`` with its geometry parameters and contact coefficients."""
+def make_terrain(kind: str, n_particles: int, geometry: dict, **contact) -> Terrain:
+    """Build the terrain of ``kind`` with its geometry parameters and contact coefficients
+    (keys of ``CONTACT_DEFAULTS``; missing ones take their defaults)."""
     cls = CLASSES[kind]
-    return cls(n_particles, **geometry, restitution=restitution, friction=friction, epsilon=epsilon)
+    return cls(n_particles, **geometry, **contact)

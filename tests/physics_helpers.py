@@ -5,7 +5,7 @@ import taichi as ti
 from taichi_soft.forces import ForceEvaluator
 from taichi_soft.integrators import make_integrator
 from taichi_soft.model import BodySpec, ModelBuilder
-from taichi_soft.terrain import make_terrain
+from taichi_soft.terrain import CONTACT_DEFAULTS, make_terrain
 
 
 def build(n=4, size=1.5, gravity=(0.0, 0.0, 0.0), terrain="none", geometry=None, contact=None, **body):
@@ -13,7 +13,7 @@ def build(n=4, size=1.5, gravity=(0.0, 0.0, 0.0), terrain="none", geometry=None,
     b = ModelBuilder(gravity=gravity)
     b.add_cube(BodySpec(n=n, size=size, **body))
     model = b.finalize()
-    c = dict(restitution=0.8, friction=0.3, epsilon=0.01)
+    c = dict(CONTACT_DEFAULTS)
     c.update(contact or {})
     return model, make_terrain(terrain, model.n_particles, geometry or {}, **c)
 

@@ -14,7 +14,7 @@ def _single_spring(k, c, m=1.0):
     model = Model(x0=x0, v0=np.zeros_like(x0), mass=np.full(2, m), pairs=np.array([[0, 1]]),
                   rest=np.array([1.0]), group=np.array([0]), group_k=np.array([k, k, k]),
                   group_kd=np.array([c, c, c]), gravity=(0.0, 0.0, 0.0), bodies=[])
-    return model, make_terrain("none", 2, {}, 0.8, 0.3, 0.01)
+    return model, make_terrain("none", 2, {})
 
 
 def _probe(model, terrain, name, steps=20000):

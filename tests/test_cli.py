@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from taichi_soft.scene import apply_override, load_scene, parse_value
+from taichi_soft.scene import apply_overrides, load_scene, parse_value
 from taichi_soft.errors import UserError
 from taichi_soft.simulation import frame_steps
 
@@ -48,6 +48,7 @@ def test_divergence_exit_3_and_outputs(cli, tmp_path):
     assert r.returncode == 3
     assert "diverged at t =" in r.stderr and "explicit_euler" in r.stderr and "--dt" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+    assert f"summary: {summary}" in r.stdout and f"states: {states}" in r.stdout
     s = json.loads(summary.read_text())
     assert s["diverged"] is True and 0 < s["diverged_at"] < 2
     d = np.load(states)
@@ -133,7 +134,7 @@ def test_set_nested_body_keys():
 
 def test_override_rejects_bad_index():
     with pytest.raises(UserError):
-        apply_override({"body": [{}]}, "body.x.n=3")
+        apply_overrides({"body": [{}]}, ["body.x.n=3"])
 
 
 def test_every_shipped_scene_validates():

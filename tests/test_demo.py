@@ -2,9 +2,9 @@
 pacing, and one real window under a virtual X display (skipped without Xvfb or Vulkan)."""
 import os
 import shutil
+import json
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -100,14 +100,12 @@ def test_live_controls_change_the_next_step_without_a_recompile(fresh, monkeypat
     reference = positions(fresh)
     fresh.reset()
     counter = CompileCounter(monkeypatch)
-    start = time.perf_counter()
     {"stiffness": lambda: fresh.set_stiffness("stretch", 8000.0), "damping": lambda: fresh.set_damping(5.0),
      "dt": lambda: fresh.set_dt(1.1e-3), "gravity": lambda: fresh.set_gravity(20.0),
      "mass": lambda: fresh.set_particle_mass(3.0), "restitution": lambda: fresh.set_contact(restitution=0.0),
      "friction": lambda: fresh.set_contact(friction=1.2)}[control]()
     fresh.step(300)
-    assert counter.count == 0
-    assert time.perf_counter() - start < 2.0  # a recompile alone takes about a second
+    assert counter.count == 0  # no kernel compiled (a recompile alone takes about a second)
     assert np.abs(positions(fresh) - reference).max() > 1e-9
 
 
@@ -167,6 +165,42 @@ def test_hud_lines_say_time_pace_energy_and_solver_iterations(fresh):
     plot = hud.energy_plot(fresh.history, (0, 0, 100, 50))
     assert [k for k, _ in plot] == list(hud.ENERGY_KEYS)
     assert all(p[:, 1].min() >= 0 and p[:, 1].max() <= 50 for _, p in plot)
+
+
+def test_pause_keeps_the_plot_history_and_restart_pauses(fresh):
+    fresh.step(20)
+    fresh.sample()
+    fresh.toggle_pause()
+    kept = list(fresh.history.t)
+    for _ in range(300):  # a paused window samples every frame: nothing new to plot
+        fresh.sample()
+    assert fresh.history.t == kept and len(kept) >= 2
+    fresh.step(1)  # a single step while paused adds its sample
+    fresh.sample()
+    assert fresh.history.t == kept + [pytest.approx(kept[-1] + 1e-3)]
+    fresh.settings.paused = False
+    fresh.restart()
+    assert fresh.settings.paused and fresh.sim.time == 0.0 and fresh.history.t == [0.0]
+
+
+def test_ladder_steps_in_physical_1_2_5_values():
+    from taichi_soft.demo.controller import ladder
+
+    assert [ladder(1e-3, +1), ladder(1e-3, -1), ladder(2e-3, +1), ladder(5e-4, -1)] == [2e-3, 5e-4, 5e-3, 2e-4]
+    assert [ladder(2000.0, +1), ladder(2000.0, -1), ladder(3000.0, +1), ladder(3000.0, -1)] == [5e3, 1e3, 5e3, 2e3]
+    k, clicks = 2000.0, 0
+    while k < 1e5:  # experiment 1 in docs/teaching.md: 2000 -> 1e5 N/m
+        k, clicks = ladder(k, +1), clicks + 1
+    assert k == 1e5 and clicks == 5
+
+
+def test_screenshot_names_never_overwrite(tmp_path):
+    from taichi_soft.demo.capture import default_path
+
+    first = default_path("shot", "plane", ".png", folder=str(tmp_path))
+    first.write_bytes(b"1")
+    second = default_path("shot", "plane", ".png", folder=str(tmp_path))
+    assert second != first and not second.exists()
 
 
 def test_pacer_takes_real_time_steps_and_reports_falling_behind():
@@ -231,6 +265,25 @@ def test_demo_window_draws_the_scene_and_hud(xvfb, tmp_path):
     assert panel.mean() < 90 and ((b > r + 60) & (b > 100))[40:380, int(0.72 * 640):].sum() > 200
     hud_text = img[5:60, 5:300]  # large white HUD text with a dark outline
     assert (hud_text.min(axis=2) > 235).sum() > 300 and (hud_text.max(axis=2) < 40).sum() > 300
+
+
+def test_every_advertised_control_works_through_real_x_input(xvfb, tmp_path):
+    """Keys pressed and buttons clicked through the X server (XTest), as a teacher would: every
+    key the HUD advertises, the Screenshot, integrator buttons; the demo keeps running after each
+    (``taichi_soft.demo.scripted`` checks what each did), screenshots show the scene, a pause keeps
+    the plot's history, and Esc closes the window."""
+    env = dict(os.environ, DISPLAY=xvfb, PYTHONUNBUFFERED="1", PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-m", "taichi_soft.demo.scripted", "--set", "body.0.n=3",
+                           "--resolution", "1024x640"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=400)
+    if "Vulkan" in proc.stderr and proc.returncode != 0 and "checks" not in proc.stdout:
+        pytest.skip(f"no Vulkan device: {proc.stderr.strip().splitlines()[-1]}")
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
+    assert lines, (proc.returncode, proc.stdout[-2000:], proc.stderr[-2000:])
+    checks = json.loads(lines[-1])["checks"]
+    assert {k: v for k, v in checks.items() if v != "ok"} == {}
+    assert len(checks) == 15 and proc.returncode == 0, (checks, proc.stderr[-2000:])
+    assert len(list((tmp_path / "out").glob("*.png"))) == 2 and len(list((tmp_path / "out").glob("*.mp4"))) == 1
 
 
 def test_demo_without_a_display_says_so_in_one_line(tmp_path):

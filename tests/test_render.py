@@ -118,7 +118,33 @@ def test_default_camera_keeps_start_and_terrain_in_frame(name):
         points.append(data["terrain"]["center"])
     px = project(points, cam, w, h)
     assert np.all((px[:, 0] > 0) & (px[:, 0] < w) & (px[:, 1] > overlay.INFO_MARGIN * h) & (px[:, 1] < h)), px
-    assert cam.follow == (data["terrain"]["kind"] == "tilted_plane")
+    assert cam.follow == (data["terrain"]["kind"] in ("tilted_plane", "sphere"))
+
+
+@pytest.mark.parametrize("name", ["plane", "tilted_plane", "sphere", "bowl", "three_cubes", "free_float"])
+def test_default_camera_keeps_every_body_in_frame_for_the_whole_run(name):
+    """At every output frame of the scene's default duration, each body's centre projects into
+    the image as the default camera (following where it follows) sees it: checked by projection,
+    without rendering. Bodies are cut to 4^3 particles (the camera, not the physics, is tested;
+    a following camera keeps them in view whatever the contact model does)."""
+    from taichi_soft.simulation import Simulation
+
+    scene = small_scene(name)
+    sim = Simulation(scene, integrator="semi_implicit_euler")
+    w, h = scene.data["render"]["resolution"]
+    cam = scene_camera(scene.data, w / h, top_margin=overlay.INFO_MARGIN)
+    bodies = [b.particles for b in sim.model.bodies]
+    outside = []
+
+    def on_frame(s):
+        x = s.state.x.to_numpy()
+        px = project([x[p].mean(axis=0) for p in bodies], cam.following(x.mean(axis=0)), w, h)
+        if not np.all((px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)):
+            outside.append(round(s.time, 3))
+
+    result = sim.run(scene.sim["duration"], scene.data["render"]["fps"], on_frame=on_frame)
+    assert sim.time == pytest.approx(scene.sim["duration"]), result
+    assert outside == [], f"bodies out of frame at t = {outside[:5]}... ({len(outside)} frames)"
 
 
 def test_scene_camera_keys_override_default():
@@ -132,18 +158,53 @@ def test_scene_camera_keys_override_default():
 
 # -- frames ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", ["plane", "tilted_plane", "sphere", "bowl", "three_cubes", "free_float"])
-@pytest.mark.xfail(strict=False, reason="known GGUI defect, docs/rendering.md: a mesh is sometimes missing "
-                   "from every frame of a freshly built view (seen under load, ~1 run in 5)")
 def test_frame_shows_bodies_and_terrain(renderer, name):
-    from taichi_soft.render.meshes import BODY_COLORS
-    from taichi_soft.render.renderer import BACKGROUND, SimulationView
+    """Every body and the terrain are in the frame, where the camera matrices put them.
+
+    Run as ``compare`` and the demo's terrain switch use GGUI: many views built, drawn and
+    dropped in one process and one window (a view per scene, all in one window). Drawn with
+    plain ``scene.mesh``, GGUI 1.7.4 dropped a whole mesh from every frame of some views (an
+    uninitialised transform buffer, see ``renderer.draw_mesh``): this test then failed in about
+    half of its runs, always for the whole of a view (body 1 of three_cubes, the tilted plane's
+    cube, a terrain).
+    """
+    from taichi_soft.render.renderer import SimulationView
     from taichi_soft.simulation import Simulation
 
     scene = small_scene(name)
     sim = Simulation(scene)
+    cam = scene_camera(scene.data, renderer.aspect)
+    view = SimulationView(sim)
+    first = renderer.render(view, cam)
+    check_bodies_and_terrain(first, scene, cam)
+    np.testing.assert_array_equal(renderer.render(view, cam), first)  # the same state draws the same frame
+
+
+def test_terrain_is_drawn_from_the_live_terrain(renderer):
+    """A geometry changed at run time (``set_geometry``) is drawn: the renderer reads the
+    terrain object the simulation collides with, not the scene file."""
+    from taichi_soft.render.renderer import BACKGROUND, SimulationView
+    from taichi_soft.simulation import Simulation
+
+    scene = small_scene("sphere")
+    sim = Simulation(scene)
     view = SimulationView(sim)
     cam = scene_camera(scene.data, renderer.aspect)
-    img = renderer.render(view, cam)
+    t = scene.data["terrain"]
+    low = np.add(t["center"], [0.0, -0.6 * t["radius"], 0.0])  # inside the ball, below the cube
+    col, row = (int(v) for v in project([low], cam, 160, 96)[0])
+    background = np.round(np.array(BACKGROUND) * 255).astype(int)
+    before = renderer.render(view, cam)[row, col].astype(int)
+    assert np.abs(before - background).max() > 10 and saturation(before) < 70, before  # the ball
+    sim.terrain.set_geometry(t["center"], 0.3 * t["radius"])
+    after = renderer.render(view, cam)[row, col].astype(int)
+    assert np.abs(after - background).max() <= 2, after  # the shrunken ball no longer covers it
+
+
+def check_bodies_and_terrain(img, scene, cam):
+    from taichi_soft.render.meshes import BODY_COLORS
+    from taichi_soft.render.renderer import BACKGROUND
+
     assert img.shape == (96, 160, 3) and img.dtype == np.uint8
     background = np.round(np.array(BACKGROUND) * 255).astype(int)
     is_background = np.abs(img.astype(int) - background).max(axis=-1) <= 2
@@ -204,6 +265,20 @@ def test_overlay_shows_time_and_changes_with_it():
     assert (a != 200).any(), "overlay drew nothing"
     assert (a != b).any(), "a later time draws the same overlay"
     assert overlay.value_range([600, 2000, 8000], "N/m") == "600..8000 N/m"
+
+
+def test_compare_tile_labels_scale_with_the_tile():
+    """Sub-labels of a 640 x 360 mosaic of four tiles were 8-px type (about 6 px of glyph)."""
+    subtitle = "dt = 0.002 s | t = 1.500 s | E = 42760.5 J"
+    sizes = {(w, h): overlay.title_sizes(h, w, "semi_implicit_euler", subtitle) for w, h in ((320, 180), (640, 360))}
+    assert sizes[(320, 180)][1] >= 10 and sizes[(640, 360)][1] > sizes[(320, 180)][1]
+    for (w, h), (big, small) in sizes.items():
+        assert overlay._text_size(subtitle, overlay.font(small))[0] <= 0.94 * w
+        assert overlay._text_size("semi_implicit_euler", overlay.font(big, "bold"))[0] <= 0.94 * w
+    img = np.full((180, 320, 3), 200, np.uint8)
+    overlay.draw_title(img, "semi_implicit_euler", subtitle)
+    rows = np.flatnonzero((img.max(axis=-1) > 230).any(axis=1))  # white text rows
+    assert rows.min() > 100 and rows.max() < 180
 
 
 # -- command line ---------------------------------------------------------------------------------

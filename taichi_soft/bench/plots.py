@@ -2,11 +2,14 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+
+from ..outfiles import write_atomic  # noqa: E402
 
 MARKERS = "osD^v<>ph*"
 
@@ -37,7 +40,7 @@ def work_precision(rows: list[dict], path, title: str, cost_key: str = "wall_s",
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    write_atomic(Path(path), lambda tmp: fig.savefig(tmp))
     plt.close(fig)
 
 
@@ -60,7 +63,7 @@ def stability_vs_stiffness(rows: list[dict], path):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    write_atomic(Path(path), lambda tmp: fig.savefig(tmp))
     plt.close(fig)
 
 
@@ -84,5 +87,5 @@ def speed_bars(rows: list[dict], path, title: str):
     ax.grid(True, axis="y", which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    write_atomic(Path(path), lambda tmp: fig.savefig(tmp))
     plt.close(fig)

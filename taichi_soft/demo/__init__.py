@@ -2,6 +2,7 @@
 
 ``controller`` holds what the controls change in the simulation (plain Python, tested without a
 window); ``pacing`` decides how many steps each frame takes; ``hud`` turns the state into text and
-plot geometry; ``textmesh`` rasterises large text into 2D triangles GGUI can draw; ``app`` is the
-window itself and ``capture`` its screenshots and recordings.
+plot geometry; ``canvas2d`` rasterises large text into 2D triangles GGUI can draw; ``app`` is the
+window itself and ``capture`` its screenshots and recordings; ``scripted`` drives the window through
+real X input (``xinput``, XTest) and checks what every advertised control does.
 """

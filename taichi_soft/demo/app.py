@@ -19,14 +19,18 @@ from ..render.renderer import SimulationView, aim_camera, apply_camera, draw_vie
 from . import hud
 from .canvas2d import Batch2D
 from .capture import Recording, default_path
-from .controller import DemoController
+from .controller import DemoController, ladder
 from .display import open_demo_window
 from .pacing import Pacer
 
-PANEL_X, PANEL_W = 0.7, 0.3  # ImGui control panel: right 30 % of the window
+PANEL_X, PANEL_W = 0.7, 0.3  # ImGui control panel: right 30 % of the window, in two columns
 OVERLAY_VERTICES = 400_000  # capacity of the HUD triangle buffer (text is ~10k per line)
 HUD_MARGIN = 0.2  # fraction of the height the HUD text covers at the top (default camera keeps clear)
-DRAW_KEYS = {"1": "surface", "2": "particles", "3": "stretch", "4": "shear", "5": "bend"}
+# Letter keys only: Taichi 1.7.4's window never delivers digit or function keys (taichi #5277).
+# W A S D Q E move the camera (``track_user_inputs``), so they are not used here.
+DRAW_KEYS = {"f": "surface", "o": "particles", "j": "stretch", "k": "shear", "l": "bend"}
+DT_RANGE = (1e-5, 5e-2)  # s: what the dt buttons may reach
+K_RANGE = (1.0, 1e7)  # N/m: what the stiffness buttons may reach
 
 
 def _changed(new: float, old: float) -> bool:
@@ -62,10 +66,10 @@ class DemoApp:
         self.draw = {"surface": True, "particles": False, "stretch": False, "shear": False, "bend": False}
         self.follow = False
         self.notice: str | None = None  # last screenshot / recording message
+        self._shot_request = None  # screenshot asked for this frame (True or a path): saved once drawn
         self.recording: Recording | None = None
         self.stats: dict = {}
         self._generation = None
-        self._pending: dict = {}  # choice sliders being dragged: label -> option shown
         self._overlay_v = ti.Vector.field(2, ti.f32, OVERLAY_VERTICES)
         self._overlay_c = ti.Vector.field(3, ti.f32, OVERLAY_VERTICES)
         self._sync_view()
@@ -79,10 +83,14 @@ class DemoApp:
         self.view = SimulationView(self.ctl.sim, surface=True, particles=True, springs=True)
         self.reset_camera()
 
+    def _default_camera(self) -> CameraSpec:
+        """The scene's default camera for this window, shifted left of the control panel."""
+        aspect = self.size[0] / self.size[1]
+        return _left_of_panel(scene_camera(self.ctl.sim.scene.data, aspect, top_margin=HUD_MARGIN), aspect)
+
     def reset_camera(self):
-        """Back to the scene's default camera (tracking the bodies on the tilted plane)."""
-        spec = _left_of_panel(scene_camera(self.ctl.sim.scene.data, self.size[0] / self.size[1], top_margin=HUD_MARGIN),
-                              self.size[0] / self.size[1])
+        """Back to the scene's default camera (tracking the bodies where the default does)."""
+        spec = self._default_camera()
         self.follow = spec.follow
         self._fov = spec.fov
         self._distance = float(np.linalg.norm(np.subtract(spec.position, spec.lookat)))
@@ -130,6 +138,12 @@ class DemoApp:
         self._draw_scene()
         self._draw_hud()
         self._draw_panel()
+        # A screenshot is saved only now that everything is drawn: saving draws the frame (GGUI
+        # ends the ImGui frame there), so saving while keys are read gives a blank image and
+        # saving from a button, inside the panel's ImGui window, crashed Taichi.
+        if self._shot_request is not None:
+            request, self._shot_request = self._shot_request, None
+            self._save_screenshot(None if request is True else request)
         if self.recording is not None:
             self.recording.add(self.window)
 
@@ -166,13 +180,13 @@ class DemoApp:
             elif key == "n":
                 self._single_step()
             elif key == "r":
-                self.ctl.reset()
+                self.ctl.restart()
             elif key == "m":
                 self.ctl.set_slow_motion(0.25 if self.ctl.settings.slow_motion == 1.0 else 1.0)
             elif key == "c":
                 self.reset_camera()
             elif key == "p":
-                self.screenshot()
+                self.screenshot()  # saved at the end of this frame
             elif key == "v":
                 self.toggle_recording()
             elif key in DRAW_KEYS:
@@ -182,74 +196,81 @@ class DemoApp:
         self.ctl.settings.paused = True
         self.ctl.step(1)
 
-    def _choice(self, g, label: str, options: list[str], current: str) -> str | None:
-        """A slider over ``options`` named in its label; returns a new choice once the mouse is
-        released (dragging past an integrator must not build it: that compiles its kernels)."""
-        shown = self._pending.get(label, current)
-        choice = options[g.slider_int(f"{label}: {shown}###{label}", options.index(shown), 0, len(options) - 1)]
-        if self.window.is_pressed(ti.ui.LMB):
-            if choice != current:
-                self._pending[label] = choice
-            return None
-        self._pending.pop(label, None)
-        return choice if choice != current else None
+    def _choices(self, g, title: str, options: list[str], current: str) -> str | None:
+        """One button per option under ``title``, the current one marked "> name <"; returns
+        the option clicked if it is not the current one."""
+        g.text(title)
+        picked = None
+        for name in options:
+            if g.button((f"> {name} <" if name == current else name) + f"###{title}{name}") and name != current:
+                picked = name
+        return picked
+
+    def _ladder_buttons(self, g, label: str, value: float, bounds, apply, unit: str):
+        """Two buttons that step ``value`` down / up the 1-2-5 ladder, each showing the value it sets."""
+        lower, higher = ladder(value, -1), ladder(value, +1)
+        if lower >= bounds[0] and g.button(f"{label} -> {lower:g} {unit}###{label}-"):
+            self._guard(apply, lower)
+        if higher <= bounds[1] and g.button(f"{label} -> {higher:g} {unit}###{label}+"):
+            self._guard(apply, higher)
 
     def _draw_panel(self):
         ctl, s, g = self.ctl, self.ctl.settings, self.gui
-        with g.sub_window("Controls (ImGui)", PANEL_X, 0.0, PANEL_W, 1.0):
+        column = PANEL_W / 2
+        with g.sub_window("Run and view", PANEL_X, 0.0, column, 1.0):
             if g.button("Pause (Space)" if not s.paused else "Play (Space)"):
                 ctl.toggle_pause()
             if g.button("Single step (N)"):
                 self._single_step()
-            if g.button("Reset (R)"):
-                ctl.reset()
+            if g.button("Reset, paused (R)"):
+                ctl.restart()
             slow = g.checkbox("Slow motion (M)", s.slow_motion < 1.0)
             if slow != (s.slow_motion < 1.0):
                 ctl.set_slow_motion(0.25 if slow else 1.0)
             if s.slow_motion < 1.0:
-                f = g.slider_float("speed x###slow", s.slow_motion, 0.02, 0.99)
+                f = g.slider_float("x###slow", s.slow_motion, 0.02, 0.99)
                 if _changed(f, s.slow_motion):
                     ctl.set_slow_motion(f)
-            picked = self._choice(g, "integrator", ctl.integrator_names(), s.integrator)
-            if picked:
+            picked = self._choices(g, "Integrator:", ctl.integrator_names(), s.integrator)
+            if picked:  # the first switch to an integrator compiles it (seconds)
                 self._guard(ctl.set_integrator, picked)
-            picked = self._choice(g, "terrain", ctl.terrain_kinds(), s.terrain)
+            picked = self._choices(g, "Terrain:", ctl.terrain_kinds(), s.terrain)
             if picked:
                 self._guard(ctl.set_terrain, picked)
                 self._sync_view()
-            # Log sliders show log10 of the value; the label gives the value itself.
-            self._log_slider(g, f"dt {s.dt:.2g} s###dt", s.dt, 1e-5, 3e-2, ctl.set_dt)
-            for kind in SPRING_KINDS:
-                self._log_slider(g, f"k {kind} {s.stiffness[kind]:.3g}###k{kind}", s.stiffness[kind], 10.0, 1e6,
-                                 lambda k, kind=kind: ctl.set_stiffness(kind, k))
-            self._slider(g, "damping N s/m###damping", s.damping, 0.0, 200.0, ctl.set_damping)
-            self._slider(g, "restitution###rest", s.restitution, 0.0, 1.0, lambda v: ctl.set_contact(restitution=v))
-            self._slider(g, "friction###fric", s.friction, 0.0, 1.5, lambda v: ctl.set_contact(friction=v))
-            self._slider(g, "particle kg###mass", s.particle_mass, 0.05, 10.0, ctl.set_particle_mass)
-            self._slider(g, "gravity m/s2###g", s.gravity, 0.0, 30.0, ctl.set_gravity)
-            g.text("Start pose (applies on reset):")
-            self._slider(g, "height m###height", s.height, -2.0, 30.0, lambda v: ctl.set_pose(height=v))
-            self._slider(g, "rotation deg###rot", s.rotation, -90.0, 90.0, lambda v: ctl.set_pose(rotation=v))
+            g.text("Draw:")
             for key, name in DRAW_KEYS.items():
-                self.draw[name] = g.checkbox(f"draw {name} ({key})", self.draw[name])
-            self.follow = g.checkbox("camera follows the cube", self.follow)
+                self.draw[name] = g.checkbox(f"{name} ({key.upper()})", self.draw[name])
+            self.follow = g.checkbox("camera follows", self.follow)
             if g.button("Reset camera (C)"):
                 self.reset_camera()
             if g.button("Screenshot (P)"):
                 self.screenshot()
             if g.button("Stop recording (V)" if self.recording else "Record MP4 (V)"):
                 self.toggle_recording()
+        with g.sub_window("Physics", PANEL_X + column, 0.0, column, 1.0):
+            g.text(f"time step dt = {s.dt:g} s")
+            self._ladder_buttons(g, "dt", s.dt, DT_RANGE, ctl.set_dt, "s")
+            for kind in SPRING_KINDS:
+                g.text(f"k {kind} = {s.stiffness[kind]:g} N/m")
+                self._ladder_buttons(g, f"k {kind}", s.stiffness[kind], K_RANGE,
+                                     lambda k, kind=kind: ctl.set_stiffness(kind, k), "N/m")
+            self._slider(g, "damping [N s/m]", "damping", s.damping, 0.0, 200.0, ctl.set_damping)
+            self._slider(g, "restitution", "rest", s.restitution, 0.0, 1.0, lambda v: ctl.set_contact(restitution=v))
+            self._slider(g, "friction coefficient", "fric", s.friction, 0.0, 1.5, lambda v: ctl.set_contact(friction=v))
+            self._slider(g, "particle mass [kg]", "mass", s.particle_mass, 0.05, 10.0, ctl.set_particle_mass)
+            self._slider(g, "gravity [m/s^2]", "g", s.gravity, 0.0, 30.0, ctl.set_gravity)
+            g.text("Start pose (used at reset):")
+            self._slider(g, "drop height [m]", "height", s.height, -2.0, 30.0, lambda v: ctl.set_pose(height=v))
+            self._slider(g, "rotation [deg]", "rot", s.rotation, -90.0, 90.0, lambda v: ctl.set_pose(rotation=v))
 
-    def _slider(self, g, label, value, lo, hi, apply):
-        new = g.slider_float(label, value, lo, hi)
+    def _slider(self, g, title, key, value, lo, hi, apply):
+        """``title`` on its own line (a narrow column clips labels beside a slider), then a slider
+        over the physical value itself."""
+        g.text(title)
+        new = g.slider_float(f"##{key}", value, lo, hi)
         if _changed(new, value):
             self._guard(apply, float(new))
-
-    def _log_slider(self, g, label, value, lo, hi, apply):
-        """A slider over log10(value): equal travel per decade, for dt and stiffness."""
-        exponent = g.slider_float(label, float(np.log10(value)), float(np.log10(lo)), float(np.log10(hi)))
-        if _changed(exponent, float(np.log10(value))):
-            self._guard(apply, float(10.0 ** exponent))
 
     def _guard(self, action, *args):
         """Run a control's action; an error (e.g. a solver refusing a value) is shown, never raised."""
@@ -260,10 +281,17 @@ class DemoApp:
 
     # -- capture ----------------------------------------------------------------------------
     def screenshot(self, path=None):
-        """Save the window (ImGui included) as PNG, by default under out/."""
+        """Ask for a PNG of the window (ImGui included), by default under out/; it is saved at
+        the end of the current frame, once everything is drawn."""
+        self._shot_request = path or True
+
+    def _save_screenshot(self, path=None):
         path = path or default_path("shot", self.ctl.sim.scene.name, ".png")
-        self.window.save_image(str(path))
-        self.notice = f"saved {path}"
+        try:
+            self.window.save_image(str(path))
+            self.notice = f"saved {path}"
+        except Exception as e:  # noqa: BLE001 - a full disk must not end the lesson
+            self.notice = f"screenshot failed: {e}".splitlines()[0]
         return path
 
     def toggle_recording(self):
@@ -284,10 +312,10 @@ class DemoApp:
         done = 0
         try:
             while self.window.running and (frames is None or done < frames):
+                if screenshot is not None and frames is not None and done == frames - 1:
+                    self.screenshot(screenshot)  # saved at the end of the last frame
                 self.frame()
                 done += 1
-                if screenshot is not None and frames is not None and done == frames:
-                    self.window.save_image(str(screenshot))
                 self.window.show()
         finally:
             if self.recording is not None:
@@ -295,12 +323,14 @@ class DemoApp:
             self.window.destroy()
 
 
-def run_demo(scene="plane", overrides=(), integrator=None, dt=None, size=(1280, 800), frames=None, screenshot=None):
-    """Open the window, build the simulation and run (Taichi must be initialised).
+def run_demo(scene="plane", overrides=(), integrator=None, dt=None, size=(1280, 800), frames=None, screenshot=None,
+             paused=False):
+    """Open the window, build the simulation and run (Taichi must be initialised); ``paused``:
+    start paused (Space plays).
 
     The window comes first: without a display or Vulkan that fails in one line before seconds
     of kernel compilation.
     """
     window = open_demo_window("taichi-soft demo", size)
-    ctl = DemoController(scene, overrides, integrator, dt)
+    ctl = DemoController(scene, overrides, integrator, dt, paused=paused)
     DemoApp(ctl, size, window).run(frames, screenshot)

@@ -18,9 +18,15 @@ MAX_REPEAT = 15  # frames one displayed frame may fill (a stall longer than 0.5 
 
 
 def default_path(kind: str, scene: str, suffix: str, folder: str = "out") -> Path:
-    """``out/demo-<scene>-<YYYYmmdd-HHMMSS>.<suffix>`` (created folder included)."""
+    """``out/demo-<scene>-<kind>-<YYYYmmdd-HHMMSS>[-<k>]<suffix>``, a name not taken yet (two
+    screenshots in one second must not overwrite each other); the folder is created."""
     Path(folder).mkdir(parents=True, exist_ok=True)
-    return Path(folder) / f"demo-{scene}-{kind}-{datetime.now():%Y%m%d-%H%M%S}{suffix}"
+    stem = f"demo-{scene}-{kind}-{datetime.now():%Y%m%d-%H%M%S}"
+    path, k = Path(folder) / f"{stem}{suffix}", 1
+    while path.exists():
+        k += 1
+        path = Path(folder) / f"{stem}-{k}{suffix}"
+    return path
 
 
 class Recording:

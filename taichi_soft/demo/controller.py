@@ -28,8 +28,19 @@ from ..scene import load_scene
 from ..simulation import Simulation
 from ..terrain import KINDS as TERRAIN_KINDS
 
-HISTORY = 240  # energy samples kept for the HUD plot (one per frame: a few seconds)
+HISTORY = 240  # energy samples kept for the HUD plot (one per frame that stepped: a few seconds)
 ENERGY_KEYS = ("kinetic_energy", "spring_energy", "gravity_energy", "total_energy")
+
+
+def ladder(value: float, direction: int) -> float:
+    """The next value above (``direction`` = +1) or below (-1) ``value`` on the 1-2-5 ladder
+    (..., 0.5, 1, 2, 5, 10, ...): how the demo's dt and stiffness buttons step, in physical units."""
+    exponent = math.floor(math.log10(value))
+    steps = [m * 10.0**e for e in (exponent - 1, exponent, exponent + 1) for m in (1.0, 2.0, 5.0)]
+    steps = [float(f"{v:.3g}") for v in steps]
+    if direction > 0:
+        return min(v for v in steps if v > value * (1 + 1e-9))
+    return max(v for v in steps if v < value * (1 - 1e-9))
 
 
 @dataclass
@@ -59,6 +70,10 @@ class EnergyHistory:
     values: dict = field(default_factory=lambda: {k: [] for k in ENERGY_KEYS})
 
     def add(self, time: float, measures: dict):
+        """Append a sample at simulated ``time`` [s]; a sample at the time already last is not
+        added again (a paused demo keeps the history it had when paused)."""
+        if self.t and self.t[-1] == time:
+            return
         self.t.append(time)
         for k in ENERGY_KEYS:
             self.values[k].append(measures[k])
@@ -80,7 +95,8 @@ class DemoController:
     and ``dt`` [s] override the scene's. Taichi must be initialised first.
     """
 
-    def __init__(self, scene: str = "plane", overrides=(), integrator: str | None = None, dt: float | None = None):
+    def __init__(self, scene: str = "plane", overrides=(), integrator: str | None = None, dt: float | None = None,
+                 paused: bool = False):
         self.scene_name = scene
         self.overrides = list(overrides)
         base = self._load(self.overrides)
@@ -95,7 +111,7 @@ class DemoController:
             stiffness={kind: float(body[kind]["k"]) for kind in SPRING_KINDS},
             damping=float(body["stretch"]["damping"]), restitution=float(base.data["contact"]["restitution"]),
             friction=float(base.data["contact"]["friction"]), particle_mass=float(body["particle_mass"]),
-            height=float(body["center"][1]), rotation=float(body["rotation"]["degrees"]), gravity=g)
+            height=float(body["center"][1]), rotation=float(body["rotation"]["degrees"]), gravity=g, paused=paused)
         if self.settings.integrator not in REGISTRY:
             raise UserError(f"unknown integrator {self.settings.integrator!r}; choose one of: {', '.join(REGISTRY)}")
         self.message: str | None = None  # why the simulation stopped (divergence or error)
@@ -221,6 +237,12 @@ class DemoController:
     def toggle_pause(self):
         self.settings.paused = not self.settings.paused
 
+    def restart(self):
+        """What R does: back to the start (``reset``) and paused, so the class can predict what
+        happens before Space plays it."""
+        self.reset()
+        self.settings.paused = True
+
     def reset(self):
         """Back to the initial state with the current height and rotation; clears a divergence
         (and the pause it caused)."""
@@ -274,7 +296,8 @@ class DemoController:
         self.settings.paused = True
 
     def sample(self) -> dict | None:
-        """Measure the current state and append its energies to ``history``.
+        """Measure the current state and append its energies to ``history`` (once per simulated
+        time: sampling a paused simulation adds nothing).
 
         After a divergence the state holds NaN: the last good measures are kept instead.
         """

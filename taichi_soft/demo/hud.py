@@ -20,7 +20,7 @@ ENERGY_LABELS = {"kinetic_energy": "kinetic", "spring_energy": "spring", "gravit
 TEXT = (0.96, 0.97, 0.98)
 ALERT = (1.0, 0.35, 0.30)
 PANEL = (0.08, 0.09, 0.12)
-HELP = ("Space play/pause  N step  R reset  M slow-mo  1-5 draw  P screenshot  V record  "
+HELP = ("Space play/pause  N step  R reset+pause  M slow-mo  F O J K L draw  P screenshot  V record  "
         "right-drag look, WASD/QE move, C camera  Esc quit")
 
 

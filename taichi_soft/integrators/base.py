@@ -11,7 +11,8 @@ particles; this base class runs it two ways from the same source:
 
 Every step ends with ``_finish`` per particle: the terrain's collision response (projection and
 restitution, the same for every method) and the divergence check (any non-finite velocity or
-|v|^2 > limit). A diverged step stops a serial run at that step; parallel runs record the
+|v|^2 > limit); then, in scenes with several bodies, the body-body contact pass
+(``self.contacts``, set by ``Simulation`` before the first step; None compiles no contact code). A diverged step stops a serial run at that step; parallel runs record the
 first diverged step index.
 """
 
@@ -52,6 +53,9 @@ class Integrator:
         self.diverged_step[None] = NOT_DIVERGED
         self.mode = self.options["mode"]
         self._step_counter = 0
+        # Body-body contact (collision.BodyContacts) or None; read with ti.static at first compile,
+        # so it must be set before the first step.
+        self.contacts = None
         # Serial launches evaluate each spring once; parallel ones gather without atomics.
         self.forces = ForceEvaluator(model, terrain, "per_spring" if self._serial() else "gather")
 
@@ -117,12 +121,27 @@ class Integrator:
         ti.loop_config(serialize=True)
         for s in range(n_steps):
             self._step_body(x, v, dt, start + s)
+            self._body_contacts(x, v, dt)
             if self.diverged_step[None] != NOT_DIVERGED:
                 break
 
     @ti.kernel
     def _advance_parallel(self, x: ti.template(), v: ti.template(), dt: float, step: ti.i32):
         self._step_body(x, v, dt, step)
+        self._body_contacts(x, v, dt)
+
+    @ti.kernel
+    def _k_body_contacts(self, x: ti.template(), v: ti.template(), dt: float):
+        self._body_contacts(x, v, dt)
+
+    @ti.func
+    def _body_contacts(self, x: ti.template(), v: ti.template(), dt):
+        """Contact between different bodies after the step (multi-body scenes only)."""
+        if ti.static(self._has_contacts()):
+            self.contacts.apply(x, v, dt)
+
+    def _has_contacts(self) -> bool:
+        return self.contacts is not None
 
     # -- shared per-particle pieces ---------------------------------------------------------
     @ti.func

@@ -422,6 +422,8 @@ class ImplicitIntegrator(Integrator):
             self._k_begin(state.x, state.v, dt)
             self._solve_step_python(state, dt)
             self._k_end(state.x, state.v, dt, start + k)
+            if self.contacts is not None:
+                self._k_body_contacts(state.x, state.v, dt)
             if self.diverged:
                 break
         self._step_counter += n_steps

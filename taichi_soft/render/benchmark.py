@@ -55,6 +55,9 @@ def main(argv=None) -> int:
         draw_view(renderer.canvas, renderer.scene, view)
         renderer.window.get_image_buffer_as_numpy()
 
+    def readback():
+        renderer.window.get_image_buffer_as_numpy()
+
     def convert():
         renderer.read_image()
 
@@ -66,7 +69,8 @@ def main(argv=None) -> int:
         video = VideoFile(Path(tmp) / "bench.mp4", 30.0, (width, height))
         pngs = PngFrames(Path(tmp) / "frames")
         counter = iter(range(10**9))
-        for name, fn in (("render (update, draw, readback)", render_only), ("readback + uint8 conversion", convert),
+        for name, fn in (("render (update, draw, readback)", render_only), ("readback alone (GGUI, float32)", readback),
+                         ("readback + uint8 conversion", convert),
                          ("measure (energies)", sim.measure), ("overlay (Pillow)", with_overlay),
                          ("PNG write", lambda: pngs.add(image, next(counter))),
                          ("H.264 encode (synchronous)", lambda: video.add(image, 0)),

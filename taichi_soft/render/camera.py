@@ -28,7 +28,7 @@ _VIEW_ANGLES = {
 }
 # Terrains where the bodies travel far (a 45-degree slope: 30 m in 4 s) get a camera that
 # follows their centre of mass instead of a fixed wide shot in which the cube would be tiny.
-_FOLLOW = {"tilted_plane"}
+_FOLLOW = {"tilted_plane", "sphere"}
 
 
 @dataclass(frozen=True)

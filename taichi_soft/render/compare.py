@@ -93,7 +93,7 @@ class Comparison(FrameJob):
             self.dt = self.tiles[0].sim.dt
             self.camera = scene_camera(scene.data, self.tile_w / self.tile_h, options.follow)
             info = overlay.run_info(self.tiles[0].sim)
-            self.legend = [f"scene: {scene.name}", f"dt = {self.dt:g} s", f"k = {info.stiffness}", f"damping = {info.damping}"]
+            self.legend = [f"scene: {scene.label}", f"dt = {self.dt:g} s", f"k = {info.stiffness}", f"damping = {info.damping}"]
             self.sinks = open_image_sinks(options.video, options.frames, options.fps, (width, height))
             self.writer = BackgroundWriter(self._compose)
         except BaseException:

@@ -66,8 +66,8 @@ class MeshFrames:
     def add(self, mesh: tuple[np.ndarray, np.ndarray], index: int, time: float):
         """Write (vertices [n, 3] m, normals [n, 3]) of frame ``index`` at simulated ``time`` [s]."""
         vertices, normals = mesh
-        self._write(self.dir.file(index), vertices, normals, self.triangles, self.body,
-                    comment=f"taichi-soft frame {index} t = {time:.6f} s")
+        self.dir.save(index, lambda path: self._write(path, vertices, normals, self.triangles, self.body,
+                                                      comment=f"taichi-soft frame {index} t = {time:.6f} s"))
 
     def commit(self) -> Path:
         return self.dir.commit()

@@ -129,17 +129,19 @@ def plane_half_size(scene_data: dict, normal) -> float:
     return float(min(40.0 + reach + 0.5 * g_along * duration**2, 1000.0))
 
 
-def terrain_meshes(scene_data: dict) -> list[TriMesh]:
-    """The meshes that draw the scene's terrain (none for ``kind = "none"``)."""
-    t = scene_data["terrain"]
-    kind = t["kind"]
+def terrain_meshes(kind: str, params: dict, scene_data: dict) -> list[TriMesh]:
+    """The meshes that draw a terrain of ``kind`` with geometry ``params`` (``Terrain.params()``:
+    the live terrain's values, so a geometry changed at run time is drawn where it now is); none
+    for ``kind = "none"``. ``scene_data`` only sizes the finite square a plane is drawn as (where
+    the bodies start and how far they can get, ``plane_half_size``).
+    """
     if kind in ("plane", "tilted_plane"):
         focus = np.mean([b["center"] for b in scene_data["body"]], axis=0)
-        return [plane_mesh(t["point"], t["normal"], focus, plane_half_size(scene_data, t["normal"]))]
+        return [plane_mesh(params["point"], params["normal"], focus, plane_half_size(scene_data, params["normal"]))]
     if kind == "sphere":
-        return [sphere_mesh(t["center"], t["radius"])]
+        return [sphere_mesh(params["center"], params["radius"])]
     if kind == "bowl":
-        return [bowl_mesh(t["center"], t["radius"])]
+        return [bowl_mesh(params["center"], params["radius"])]
     return []
 
 
@@ -155,13 +157,14 @@ class SurfaceMesh:
     """
 
     def __init__(self, model):
-        particles, triangles, self.bodies = [], [], []
+        particles, triangles, body_of, self.bodies = [], [], [], []
         nv = ni = 0
         for body in model.bodies:
             used, local = np.unique(body.surface, return_inverse=True)
             particles.append(used)
             triangles.append(local.reshape(-1, 3) + nv)
             self.bodies.append((nv, len(used), ni, local.size))
+            body_of.append(np.full(len(used), len(self.bodies) - 1, np.int32))
             nv += len(used)
             ni += local.size
         self.n_vertices, self.n_triangles = nv, ni // 3
@@ -172,7 +175,7 @@ class SurfaceMesh:
         self.normals = ti.Vector.field(3, ti.f32, nv)
         self.indices = ti.field(ti.i32, 3 * self.n_triangles)
         self.indices.from_numpy(self.triangles_np.ravel())
-        self.index_array = self.triangles_np.ravel()  # host copy for GGUI, alive as long as the mesh
+        self.vertex_body = np.concatenate(body_of)  # [n_vertices] body index of each vertex
 
     @ti.kernel
     def update(self, x: ti.template()):

@@ -9,14 +9,15 @@ from __future__ import annotations
 import os
 import queue
 import shutil
+import subprocess
 import tempfile
 import threading
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
-from ..outfiles import reserve_temp
+from ..errors import OutputError, UserError
+from ..outfiles import fsync_file, reserve_temp
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -25,6 +26,9 @@ class VideoFile:
     """An H.264 MP4 (yuv420p, which every player opens) or a GIF, encoded by ffmpeg as frames come.
 
     ``size`` = (width, height) in pixels; MP4 needs both even (checked by ``check_video_size``).
+    ffmpeg (the binary imageio-ffmpeg ships) runs as our own child process so that its exit
+    status is checked: an encoder error or a full disk raises ``OutputError`` at ``add`` or
+    ``commit`` and the destination keeps its old file.
     """
 
     def __init__(self, path: Path, fps: float, size: tuple[int, int]):
@@ -35,37 +39,57 @@ class VideoFile:
         if self.path.suffix.lower() == ".gif":
             # One palette for the whole clip (ffmpeg buffers the frames to build it): far better
             # colours than the fixed 8-bit palette GIF encoders use by default.
-            codec, pix_fmt = "gif", "pal8"
-            params = ["-vf", "split[a][b];[a]palettegen=stats_mode=full[p];[b][p]paletteuse=dither=bayer", "-loop", "0"]
+            encode = ["-vf", "split[a][b];[a]palettegen=stats_mode=full[p];[b][p]paletteuse=dither=bayer",
+                      "-loop", "0", "-f", "gif"]
         else:
-            codec, pix_fmt = "libx264", "yuv420p"
             # veryfast: encoding keeps up with rendering on two cores; crf 20 keeps thin lines and text sharp.
-            params = ["-preset", "veryfast", "-crf", "20", "-movflags", "+faststart"]
+            encode = ["-vcodec", "libx264", "-pix_fmt", "yuv420p", "-preset", "veryfast", "-crf", "20",
+                      "-movflags", "+faststart", "-f", "mp4"]
+        self._log = tempfile.TemporaryFile()
         try:
-            self._gen = imageio_ffmpeg.write_frames(str(self.tmp), size, fps=fps, codec=codec, pix_fmt_out=pix_fmt,
-                                                    quality=None, macro_block_size=1, ffmpeg_log_level="error",
-                                                    output_params=params)
-            self._gen.send(None)
-        except Exception as e:  # noqa: BLE001 - no ffmpeg binary, or it refused the options
+            cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-v", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
+                   "-s", f"{size[0]}x{size[1]}", "-r", f"{fps:.6g}", "-i", "-", "-an", *encode, str(self.tmp)]
+            # Own session: a Ctrl-C or SIGTERM to the terminal's process group reaches us, not ffmpeg,
+            # and we decide whether the file is finished or dropped.
+            self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log,
+                                          start_new_session=True)
+        except (OSError, RuntimeError) as e:  # no ffmpeg binary
             self.tmp.unlink(missing_ok=True)
             raise UserError(f"cannot start ffmpeg to write {self.path}: {e}") from None
         self.frames = 0
 
     def add(self, frame: np.ndarray, index: int):
-        self._gen.send(np.ascontiguousarray(frame))
+        try:
+            self._proc.stdin.write(np.ascontiguousarray(frame, dtype=np.uint8).tobytes())
+        except OSError:  # ffmpeg exited: a full disk or an encoder error; its log says which
+            self._proc.wait()
+            raise OutputError(f"video {self.path} was not written: ffmpeg stopped: {self._ffmpeg_says()}") from None
         self.frames += 1
 
     def commit(self) -> Path:
-        self._gen.close()
+        try:
+            self._proc.stdin.close()
+        except OSError:
+            pass
+        if self._proc.wait() != 0 or self.tmp.stat().st_size == 0:
+            raise OutputError(f"video {self.path} was not written: ffmpeg failed: {self._ffmpeg_says()}")
+        try:
+            fsync_file(self.tmp)
+        except OSError as e:
+            raise OutputError(f"video {self.path} was not written: {e.strerror}") from None
         os.replace(self.tmp, self.path)
         return self.path
 
     def abort(self):
-        try:
-            self._gen.close()
-        except Exception:  # noqa: BLE001 - already failing; the temp file goes anyway
-            pass
+        if self._proc.poll() is None:
+            self._proc.kill()
+        self._proc.wait()
         self.tmp.unlink(missing_ok=True)
+
+    def _ffmpeg_says(self) -> str:
+        self._log.seek(0)
+        lines = [ln.strip() for ln in self._log.read().decode(errors="replace").splitlines() if ln.strip()]
+        return lines[-1] if lines else f"exit status {self._proc.returncode}"
 
 
 class StagedDir:
@@ -83,6 +107,14 @@ class StagedDir:
 
     def file(self, index: int) -> Path:
         return self.staging / f"{self.prefix}_{index:05d}{self.suffix}"
+
+    def save(self, index: int, write) -> None:
+        """``write(path)`` the file of ``index``; a failed write (full disk...) raises ``OutputError``."""
+        path = self.file(index)
+        try:
+            write(path)
+        except OSError as e:
+            raise OutputError(f"{self.target} was not written: {path.name}: {e.strerror or e}") from None
 
     def commit(self) -> Path:
         self.target.mkdir(parents=True, exist_ok=True)
@@ -109,7 +141,8 @@ class PngFrames:
     def add(self, frame: np.ndarray, index: int):
         from PIL import Image
 
-        Image.fromarray(frame).save(self.dir.file(index), compress_level=1)  # fast; PNG stays lossless
+        # compress_level 1: fast; PNG stays lossless
+        self.dir.save(index, lambda path: Image.fromarray(frame).save(path, compress_level=1))
 
     def commit(self) -> Path:
         return self.dir.commit()
@@ -133,8 +166,21 @@ def open_image_sinks(video: Path | None, frames: Path | None, fps: float, size: 
 
 
 def commit_all(sinks) -> list[Path]:
-    """Move every sink's output into place; returns the paths written."""
-    return [sink.commit() for sink in sinks]
+    """Move every sink's output into place; returns the paths written.
+
+    A sink that cannot be committed is aborted (its destination keeps the old output) and the
+    others are still committed; then ``OutputError`` names every one that failed.
+    """
+    done, failed = [], []
+    for sink in sinks:
+        try:
+            done.append(sink.commit())
+        except (OutputError, OSError) as e:
+            abort_all([sink])
+            failed.append(str(e) if isinstance(e, OutputError) else f"{e.filename}: {e.strerror}")
+    if failed:
+        raise OutputError("; ".join(failed))
+    return done
 
 
 def abort_all(sinks):

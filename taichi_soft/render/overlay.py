@@ -69,7 +69,7 @@ def run_info(sim) -> RunInfo:
     """The overlay labels of a ``Simulation``: stiffness and damping read from the model's fields
     (so values changed at run time show), as one value or a range over bodies and spring kinds."""
     m = sim.model
-    return RunInfo(sim.scene.name, sim.integrator_name, sim.dt,
+    return RunInfo(sim.scene.label, sim.integrator_name, sim.dt,
                    value_range(m.group_k.to_numpy(), "N/m"), value_range(m.group_kd.to_numpy(), "N s/m"))
 
 
@@ -124,14 +124,32 @@ def draw_banner(img: np.ndarray, text: str, size: int | None = None, y: float = 
            fill=ALERT, alpha=0.88)
 
 
+def title_sizes(height: int, width: int, title: str, subtitle: str = "") -> tuple[int, int]:
+    """Font sizes [px] (title, subtitle) of a ``draw_title`` label on a ``width`` x ``height`` tile.
+
+    Both scale with the tile: the title 1/11 of its height, the subtitle 0.7 of the title (at
+    least 10 px, readable in a 640 x 360 mosaic of four tiles), each shrunk until it fits the
+    tile's width.
+    """
+    size = max(11, round(height / 11))
+    small = max(10, round(0.7 * size))
+    while size > 9 and _text_size(title, font(size, "bold"))[0] > 0.94 * width:
+        size -= 1
+    while subtitle and small > 8 and _text_size(subtitle, font(small))[0] > 0.94 * width:
+        small -= 1
+    return size, small
+
+
 def draw_title(img: np.ndarray, title: str, subtitle: str = "", size: int | None = None) -> None:
-    """A big label (compare tiles) at the bottom left: bold ``title`` over a smaller ``subtitle``.
+    """A big label (compare tiles) at the bottom left: bold ``title`` over a smaller ``subtitle``
+    (sizes from ``title_sizes`` unless ``size`` fixes the title's).
 
     At the bottom because default cameras put the foreground terrain there, not the bodies.
     """
-    h = img.shape[0]
-    size = size or max(11, round(h / 11))
-    big, small = font(size, "bold"), font(max(8, size * 9 // 20))
+    h, w = img.shape[:2]
+    auto, small_size = title_sizes(h, w, title, subtitle)
+    size = size or auto
+    big, small = font(size, "bold"), font(small_size)
     pad = max(2, size // 5)
     tw, th = _text_size(title, big)
     sw, sh = _text_size(subtitle, small) if subtitle else (0, 0)

@@ -58,6 +58,28 @@ def draw_view(canvas, scene, view: "SimulationView"):
     canvas.scene(scene)
 
 
+def _identity_transform():
+    """A one-instance 4x4 f32 identity transform field (see ``draw_mesh``)."""
+    m = ti.Matrix.field(4, 4, ti.f32, 1)
+    m.from_numpy(np.eye(4, dtype=np.float32)[None])
+    return m
+
+
+def draw_mesh(scene, identity, vertices, indices, normals, colors, two_sided=False):
+    """Draw a triangle mesh (Taichi fields: vertices, triangle ``indices``, unit normals,
+    per-vertex colours) into ``scene`` through ``mesh_instance`` with the one-instance
+    ``identity`` transform (``_identity_transform()``).
+
+    Why not ``scene.mesh``: GGUI 1.7.4's mesh vertex shader always reads an instance transform,
+    ``model = I * (1 - has_attribute) + transform * has_attribute``, and for a plain mesh the
+    64-byte transform buffer is allocated but never written (``renderables/mesh.cpp``). When that
+    uninitialised memory holds an Inf or NaN, 0 * Inf = NaN turns every vertex into NaN and the
+    whole mesh is silently dropped; the recycled allocation keeps the same bytes, so the mesh
+    stayed missing in every frame of that view. An explicit identity transform is defined memory.
+    """
+    scene.mesh_instance(vertices, indices, normals, per_vertex_color=colors, two_sided=two_sided, transforms=identity)
+
+
 class _StaticMesh:
     """A ``TriMesh`` uploaded once into the f32 fields GGUI draws from."""
 
@@ -66,15 +88,15 @@ class _StaticMesh:
         self.vertices = ti.Vector.field(3, ti.f32, n)
         self.normals = ti.Vector.field(3, ti.f32, n)
         self.colors = ti.Vector.field(3, ti.f32, n)
+        self.indices = ti.field(ti.i32, mesh.triangles.size)
         self.vertices.from_numpy(mesh.vertices.astype(np.float32))
         self.normals.from_numpy(mesh.normals.astype(np.float32))
         self.colors.from_numpy(mesh.colors.astype(np.float32))
-        # Indices go to GGUI as a numpy array we keep alive (see ``Renderer`` on why).
-        self.indices = np.ascontiguousarray(mesh.triangles, dtype=np.int32).ravel()
+        self.indices.from_numpy(np.ascontiguousarray(mesh.triangles, dtype=np.int32).ravel())
         self.two_sided = mesh.two_sided
 
-    def draw(self, scene):
-        scene.mesh(self.vertices, self.indices, self.normals, per_vertex_color=self.colors, two_sided=self.two_sided)
+    def draw(self, scene, identity):
+        draw_mesh(scene, identity, self.vertices, self.indices, self.normals, self.colors, self.two_sided)
 
 
 @ti.data_oriented
@@ -96,7 +118,14 @@ class SimulationView:
         self.show_surface, self.show_particles, self.show_springs = surface, particles, springs
         springs = bool(self.show_springs)  # any kind: the index array of every kind is built
         self.surface = SurfaceMesh(model)
-        self.terrain = [_StaticMesh(m) for m in terrain_meshes(sim.scene.data)]
+        self._identity = _identity_transform()
+        # One draw call for every body: per-vertex colours, one colour per body.
+        self.body_colors = ti.Vector.field(3, ti.f32, self.surface.n_vertices)
+        palette = np.asarray(BODY_COLORS, dtype=np.float32)
+        self.body_colors.from_numpy(palette[self.surface.vertex_body % len(palette)])
+        self._terrain_params = None
+        self.terrain: list[_StaticMesh] = []
+        self._sync_terrain()
         self.points = None
         if particles or springs:
             self.points = ti.Vector.field(3, ti.f32, model.n_particles)
@@ -133,8 +162,22 @@ class SimulationView:
         for i in x:
             self.points[i] = ti.cast(x[i], ti.f32)
 
+    def _sync_terrain(self):
+        """(Re)build the terrain meshes when the live terrain's geometry differs from the drawn one.
+
+        Drawn from ``sim.terrain`` itself (kind and ``params()``), not from the scene file, so a
+        geometry changed at run time (``set_geometry``) is drawn where the bodies now collide.
+        """
+        terrain = self.sim.terrain
+        params = (terrain.kind, terrain.params())
+        if params != self._terrain_params:
+            self._terrain_params = params
+            self.terrain = [_StaticMesh(m) for m in terrain_meshes(params[0], params[1], self.sim.scene.data)]
+
     def update(self):
-        """Copy the simulation's current positions into the draw fields (normals included)."""
+        """Copy the simulation's current positions into the draw fields (normals included) and
+        follow any change of the terrain's geometry."""
+        self._sync_terrain()
         x = self.sim.state.x
         self.surface.update(x)
         if self.points is not None:
@@ -142,16 +185,16 @@ class SimulationView:
 
     def draw(self, scene):
         for mesh in self.terrain:
-            mesh.draw(scene)
+            mesh.draw(scene, self._identity)
         s = self.surface
         if self.show_surface:
-            for b, (_, _, first, count) in enumerate(s.bodies):
-                scene.mesh(s.vertices, s.index_array, s.normals, color=BODY_COLORS[b % len(BODY_COLORS)],
-                           index_offset=first, index_count=count)
+            draw_mesh(scene, self._identity, s.vertices, s.indices, s.normals, self.body_colors)
         for name, (first, count) in self.spring_ranges.items():
             if name in self._show_springs and count:
+                # vertex_count only matters for unindexed lines; GGUI prints a warning every frame
+                # when it is odd (its default: the particle count), so pass an even one.
                 scene.lines(self.points, width=1.0, indices=self.spring_indices, color=SPRING_COLORS[name],
-                            index_offset=first, index_count=count)
+                            index_offset=first, index_count=count, vertex_count=self.points.shape[0] // 2 * 2)
         if self.show_particles:
             scene.particles(self.points, radius=self.particle_radius, color=PARTICLE_COLOR)
 
@@ -159,10 +202,8 @@ class SimulationView:
 class Renderer:
     """A hidden ``width`` x ``height`` pixel GGUI window that renders views to numpy images.
 
-    Triangle and line indices are handed to GGUI as numpy arrays owned by the views. Given a
-    Taichi field instead, GGUI 1.7.4 copies it into a temporary numpy array per draw call and
-    keeps only a raw pointer to it; when several draws share one index field (a body per draw),
-    meshes intermittently went missing from frames.
+    GGUI copies vertex and index data into its own buffers during each draw call, so views may
+    be built, drawn and dropped in any order (meshes are drawn through ``draw_mesh``).
     """
 
     def __init__(self, width: int, height: int):

@@ -77,8 +77,16 @@ def open_window(width: int, height: int, title: str = "taichi-soft", visible: bo
 def window_rgb(window) -> np.ndarray:
     """The window's last rendered frame as uint8 RGB [height, width, 3], top row first.
 
-    GGUI hands back float32 [width, height, 4] with the origin at the bottom left.
+    GGUI hands back a fresh float32 [width, height, 4] array (values k / 255, origin at the
+    bottom left). It is scaled in place and cast to uint8 in its own memory order (contiguous
+    passes), and only then transposed and flipped, on bytes: the old float transpose-clip-scale-
+    cast chain read the floats four times through a transposed view.
     """
     buf = window.get_image_buffer_as_numpy()
-    rgb = buf[:, ::-1, :3].transpose(1, 0, 2)
-    return (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    if not buf.flags.writeable:
+        buf = buf.copy()
+    np.multiply(buf, 255.0, out=buf)
+    buf += 0.5  # round: GGUI's values are exact k / 255, so no clipping is needed
+    rgba = np.empty(buf.shape, np.uint8)
+    np.copyto(rgba, buf, casting="unsafe")
+    return np.ascontiguousarray(rgba.transpose(1, 0, 2)[::-1, :, :3])

@@ -1,0 +1,379 @@
+"""The demo driven by real X input, as a teacher would drive it: every advertised control checked.
+
+    DISPLAY=:1 python -m taichi_soft.demo.scripted [--scene plane] [--set body.0.n=3 ...]
+                                                   [--resolution 1024x640] [--minutes M]
+
+Opens the demo window (started paused) and presses every key the HUD advertises and clicks
+panel buttons through the X server (``xinput.XInput``, XTest), checking after each what it did to
+the demo's state; screenshots and a recording go to ``out/`` under the working directory. With
+``--minutes M`` it then keeps pressing random keys and clicking random buttons for M minutes (a
+soak test). Prints one JSON object (``checks``: control -> "ok" or what went wrong; ``actions``:
+soak actions done) and exits 0 only if every check passed. Needs an X display (Xvfb will do) in
+which the window is the only one, at the top-left corner.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import random
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..render.window import window_rgb
+from .app import DRAW_KEYS, PANEL_X
+
+CAMERA_KEYS = ("w", "a", "s", "d", "q", "e")
+
+
+def button_bands(img: np.ndarray, x0: int) -> list[tuple[int, int]]:
+    """Rows (first, last) of the ImGui buttons in the panel column starting at pixel ``x0``.
+
+    A button row: the 24 pixels from 9 px into the column are all ImGui's button blue or its
+    white label (antialiased: bluish), at least a quarter of them pure blue; a button is 12 or
+    more such rows, below the 19-px title bar. Checkbox frames are a darker blue, and a
+    checkbox row also holds the dark panel background.
+    """
+    px = img[:, x0 + 9:x0 + 33].astype(int)  # within the narrowest button ("rk4")
+    r, g, b = px[..., 0], px[..., 1], px[..., 2]
+    pure = (b > 95) & (b - r > 55) & (g - r > 20) & (r < 90)
+    label = (px.min(axis=-1) > 110) | ((b > 95) & (b - r > 20))
+    blue = (pure.mean(axis=1) >= 0.25) & ((pure | label).mean(axis=1) > 0.9)
+    blue[:20] = False
+    bands, start = [], None
+    for y, on in enumerate(np.append(blue, False)):
+        if on and start is None:
+            start = y
+        elif not on and start is not None:
+            if y - start >= 12:
+                bands.append((start, y - 1))
+            start = None
+    return bands
+
+
+class Session:
+    """A ``DemoApp`` and an ``XInput`` on its display, stepped frame by frame."""
+
+    def __init__(self, app, xin):
+        self.app, self.x = app, xin
+        self.width, self.height = app.size
+        self.image = None
+        self.origin = (0, 0)  # screen pixel of the window's top-left corner (``calibrate``)
+
+    def calibrate(self):
+        """Find where the window sits on the screen (GLFW places it at (100, 100) here): move the
+        pointer, read where the window saw it."""
+        for _ in range(3):
+            at = (self.origin[0] + self.width // 2, self.origin[1] + self.height // 2)
+            self.x.move(*at)
+            self.frames(3)
+            u, v = self.app.window.get_cursor_pos()  # [0, 1], y up
+            seen = (round(u * self.width), round((1 - v) * self.height))
+            self.origin = (self.origin[0] + self.width // 2 - seen[0], self.origin[1] + self.height // 2 - seen[1])
+            if seen == (self.width // 2, self.height // 2):
+                return
+        raise AssertionError(f"the window does not see the pointer where expected (origin {self.origin})")
+
+    def move(self, x: int, y: int):
+        """Pointer to pixel (x, y) of the window."""
+        self.x.move(self.origin[0] + x, self.origin[1] + y)
+
+    @property
+    def ctl(self):
+        return self.app.ctl
+
+    def frames(self, n: int = 1, capture: bool = False):
+        for _ in range(n):
+            if not self.app.window.running:
+                raise AssertionError("the window closed")
+            self.app.frame()
+            if capture:
+                self.image = window_rgb(self.app.window)  # the frame as drawn, panel included
+            self.app.window.show()
+
+    def press(self, key: str, frames: int = 2):
+        self.x.key(key, True)
+        self.frames(1)
+        self.x.key(key, False)
+        self.frames(frames)
+
+    def hold(self, key: str, frames: int = 3):
+        self.x.key(key, True)
+        self.frames(frames)
+        self.x.key(key, False)
+        self.frames(1)
+
+    def buttons(self) -> list[tuple[int, int]]:
+        """Centre pixels (x, y) of the buttons of the first panel column, top to bottom."""
+        self.pointer_to_scene()
+        self.frames(2, capture=True)
+        x0 = round(PANEL_X * self.width)
+        mid = x0 + 30
+        return [(mid, (a + b) // 2) for a, b in button_bands(self.image, x0)]
+
+    def click(self, at: tuple[int, int], frames: int = 2):
+        self.move(*at)
+        self.frames(2)
+        self.x.button("LMB", True)
+        self.frames(1)
+        self.x.button("LMB", False)
+        self.frames(frames)
+        self.pointer_to_scene()
+
+    def pointer_to_scene(self):
+        """Pointer over the 3D view (X gives keyboard focus to the window under the pointer)."""
+        self.move(round(0.35 * self.width), round(0.45 * self.height))
+
+    def camera(self) -> tuple[np.ndarray, np.ndarray]:
+        c = self.app.camera
+        return c.curr_position.to_numpy().astype(float), c.curr_lookat.to_numpy().astype(float)
+
+
+def _check_screenshot(path, notice: str | None) -> None:
+    from PIL import Image
+
+    assert path is not None and Path(path).is_file(), f"no screenshot file ({notice})"
+    img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    assert img.reshape(-1, 3).std(axis=0).max() > 10, "the screenshot is one colour"
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    assert ((r > g + 50) & (g > b + 30)).sum() > 100, "the screenshot shows no (orange) body"
+
+
+def _latest(pattern: str, before: set) -> Path | None:
+    new = sorted(set(Path("out").glob(pattern)) - before)
+    return new[-1] if new else None
+
+
+def check_every_control(s: Session) -> dict:
+    """Press every advertised key and click panel buttons; returns control -> "ok" or the failure."""
+    ctl, app = s.ctl, s.app
+    results = {}
+
+    def check(name, fn):
+        try:
+            fn()
+            results[name] = "ok"
+        except Exception as e:  # noqa: BLE001 - report every control, not just the first failure
+            results[name] = f"{type(e).__name__}: {e}".splitlines()[0]
+
+    s.calibrate()
+    s.pointer_to_scene()
+    s.frames(3)
+
+    def start_paused():
+        assert ctl.settings.paused and ctl.sim.time == 0.0, (ctl.settings.paused, ctl.sim.time)
+
+    def space_plays():
+        s.press(" ")
+        assert not ctl.settings.paused, "Space did not start the run"
+        for _ in range(200):  # a few frames that stepped: the plot has history to keep
+            if ctl.sim.time >= 0.05 and len(ctl.history.t) >= 4:
+                break
+            s.frames(1)
+        assert ctl.sim.time >= 0.05 and len(ctl.history.t) >= 4, (ctl.sim.time, ctl.history.t)
+
+    def pause_keeps_history():
+        s.press(" ")
+        assert ctl.settings.paused, "Space did not pause"
+        t, history = ctl.sim.time, list(ctl.history.t)
+        assert len(history) >= 3, history
+        s.frames(10)
+        assert ctl.sim.time == t and list(ctl.history.t) == history, "the paused plot's history changed"
+
+    def n_steps():
+        t = ctl.sim.time
+        s.press("n")
+        assert ctl.settings.paused and math.isclose(ctl.sim.time, t + ctl.sim.dt), (t, ctl.sim.time)
+
+    def m_slow_motion():
+        s.press("m")
+        assert ctl.settings.slow_motion == 0.25, ctl.settings.slow_motion
+        s.press("m")
+        assert ctl.settings.slow_motion == 1.0, ctl.settings.slow_motion
+
+    def draw_keys():
+        for key, name in DRAW_KEYS.items():
+            before = app.draw[name]
+            s.press(key)
+            assert app.draw[name] != before, f"{key.upper()} did not toggle {name}"
+            s.press(key)
+            assert app.draw[name] == before, f"{key.upper()} did not toggle {name} back"
+
+    def camera_keys():
+        for key in CAMERA_KEYS:
+            before = s.camera()[0]
+            s.hold(key)
+            assert np.abs(s.camera()[0] - before).max() > 1e-4, f"{key.upper()} did not move the camera"
+
+    def right_drag():
+        before = s.camera()
+        front = before[1] - before[0]
+        s.pointer_to_scene()
+        s.frames(1)
+        s.x.button("RMB", True)
+        s.frames(1)
+        s.move(round(0.35 * s.width) + 80, round(0.45 * s.height) + 40)
+        s.frames(2)
+        s.x.button("RMB", False)
+        s.frames(1)
+        after = s.camera()
+        turned = after[1] - after[0]
+        cos = np.dot(front, turned) / (np.linalg.norm(front) * np.linalg.norm(turned))
+        assert cos < 0.9999, "right-drag did not turn the view"
+        s.pointer_to_scene()
+
+    def c_resets_camera():
+        s.hold("w")
+        s.press("c")
+        want = app._default_camera()
+        eye, target = s.camera()
+        assert np.allclose(eye, want.position, atol=1e-4), (eye, want.position)
+
+    def p_screenshot():
+        before = set(Path("out").glob("*.png"))
+        s.press("p")
+        _check_screenshot(_latest("*.png", before), app.notice)
+
+    def screenshot_button():
+        before = set(Path("out").glob("*.png"))
+        bands = s.buttons()
+        s.click(bands[-2])  # "Screenshot (P)": the second-last button of the column
+        s.frames(3)
+        _check_screenshot(_latest("*.png", before), app.notice)
+
+    def integrator_button():
+        bands = s.buttons()
+        names = ctl.integrator_names()
+        expected = 3 + len(names) + len(ctl.terrain_kinds()) + 3
+        assert len(bands) == expected, f"found {len(bands)} buttons in the panel, not {expected}: {bands}"
+        s.click(bands[3 + names.index("rk4")])  # after Pause, Single step, Reset
+        assert ctl.settings.integrator == "rk4" == ctl.sim.integrator_name, ctl.settings.integrator
+        s.press(" ")
+        t = ctl.sim.time
+        s.frames(3)
+        assert ctl.sim.time > t, "no steps with rk4"
+        s.press(" ")
+
+    def v_records():
+        before = set(Path("out").glob("*.mp4"))
+        s.press("v")
+        assert app.recording is not None, app.notice
+        s.frames(5)
+        s.press("v")
+        assert app.recording is None, "V did not stop the recording"
+        path = _latest("*.mp4", before)
+        assert path is not None and path.stat().st_size > 0, app.notice
+
+    def r_restarts_paused():
+        s.press(" ")
+        s.frames(3)
+        s.press("r")
+        assert ctl.sim.time == 0.0 and ctl.settings.paused, (ctl.sim.time, ctl.settings.paused)
+
+    def escape_quits():
+        s.x.key("Escape", True)
+        s.frames(1)
+        s.x.key("Escape", False)
+        try:
+            s.frames(2)
+        except AssertionError:
+            pass
+        assert not app.window.running, "Esc did not close the window"
+
+    for name, fn in (("start paused", start_paused), ("Space plays", space_plays),
+                     ("Space pauses, plot history kept", pause_keeps_history), ("N single step", n_steps),
+                     ("M slow motion", m_slow_motion), ("F O J K L draw toggles", draw_keys),
+                     ("W A S D Q E move the camera", camera_keys), ("right-drag turns the view", right_drag),
+                     ("C resets the camera", c_resets_camera), ("P screenshot", p_screenshot),
+                     ("Screenshot button", screenshot_button), ("integrator button", integrator_button),
+                     ("V records", v_records), ("R resets, paused", r_restarts_paused)):
+        if not app.window.running:
+            results[name] = "not run: the window closed"
+            continue
+        check(name, fn)
+    return results, escape_quits
+
+
+def soak(s: Session, minutes: float, seed: int = 0) -> int:
+    """Random keys and button clicks for ``minutes``; returns the number of actions taken.
+
+    Raises if the window closes or the state stops being finite without a divergence message.
+    """
+    rng = random.Random(seed)
+    keys = [" ", "n", "r", "m", "c", "p", *DRAW_KEYS, *CAMERA_KEYS]
+    end = time.monotonic() + 60 * minutes
+    actions = 0
+    bands = s.buttons()
+    recording_toggles = 0
+    while time.monotonic() < end:
+        roll = rng.random()
+        if roll < 0.55:
+            s.press(rng.choice(keys), frames=rng.randint(1, 5))
+        elif roll < 0.9:
+            # Any button but the last (recording: toggled below, rarely, so files stay small).
+            s.click(rng.choice(bands[:-1]), frames=rng.randint(1, 5))
+            bands = s.buttons()  # a terrain switch or a label change may move them
+        else:
+            s.press("v", frames=rng.randint(5, 20))
+            recording_toggles += 1
+        actions += 1
+        if not s.app.window.running:
+            raise AssertionError(f"the window closed after {actions} actions")
+        m = s.ctl.last_measures
+        if m is not None and not s.ctl.message:
+            assert np.isfinite(m["total_energy"]), "non-finite energy without a divergence message"
+    if s.app.recording is not None:
+        s.press("v")
+    return actions
+
+
+def main(argv=None) -> int:
+    from ..runtime import init
+    from ..scene import parse_resolution
+    from .app import DemoApp
+    from .controller import DemoController
+    from .display import open_demo_window
+    from .xinput import XInput
+
+    p = argparse.ArgumentParser(prog="python -m taichi_soft.demo.scripted", description=__doc__.splitlines()[0])
+    p.add_argument("--scene", default="plane")
+    p.add_argument("--set", action="append", default=[])
+    p.add_argument("--resolution", default="1024x640")
+    p.add_argument("--minutes", type=float, default=0.0, help="soak test length after the checks")
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    size = parse_resolution(args.resolution)
+    init("cpu", "f64")
+    window = open_demo_window("taichi-soft demo", size, fps_limit=1000)
+    app = DemoApp(DemoController(args.scene, args.set, "semi_implicit_euler", paused=True), size, window)
+    xin = XInput()
+    session = Session(app, xin)
+    report = {"checks": {}, "actions": 0}
+    try:
+        report["checks"], escape = check_every_control(session)
+        if args.minutes > 0 and app.window.running:
+            try:
+                report["actions"] = soak(session, args.minutes, args.seed)
+                report["checks"]["soak"] = "ok"
+            except Exception as e:  # noqa: BLE001
+                report["checks"]["soak"] = f"{type(e).__name__}: {e}".splitlines()[0]
+        if app.window.running:
+            try:
+                escape()
+                report["checks"]["Esc quits"] = "ok"
+            except Exception as e:  # noqa: BLE001
+                report["checks"]["Esc quits"] = f"{type(e).__name__}: {e}".splitlines()[0]
+    finally:
+        if app.recording is not None:
+            app.toggle_recording()
+        app.window.destroy()
+        xin.close()
+    print(json.dumps(report))
+    return 0 if all(v == "ok" for v in report["checks"].values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
