@@ -185,6 +185,7 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + n_surface * 3 * 8)
     if real == 4:
         host += n_p * 2 * 3 * real  # State.set converts the float64 x0_np, v0_np to f32 copies
+    host += len(names) * n_p * 16  # simulation.check_start: signed distances and contact radii (float64)
     if record_states:
         sim = scene_data["sim"]
         frames = math.floor(sim["duration"] * scene_data["render"]["fps"]) + 2
