@@ -80,7 +80,7 @@ def finite_or_none(obj):
 
 # -- commands --------------------------------------------------------------------------------
 def add_scene_args(p: argparse.ArgumentParser, integrator_default_help="the scene's", integrator=True):
-    from .runtime import ARCHS, PRECISIONS
+    from .runtime import ARCHS, FAST_MATH_CLI_DEFAULT, PRECISIONS
 
     p.add_argument("--scene", default="plane", help="scene name in scenes/ or a path to a .toml file (default: plane)")
     if integrator:
@@ -91,6 +91,14 @@ def add_scene_args(p: argparse.ArgumentParser, integrator_default_help="the scen
                    help="override a scene key by dotted path, e.g. body.0.stretch.k=5000 (repeatable)")
     p.add_argument("--arch", default="cpu", choices=None, help=f"backend: {', '.join(ARCHS)} (default: cpu)")
     p.add_argument("--precision", default="f64", help=f"float precision: {', '.join(PRECISIONS)} (default: f64)")
+    add_fast_math_arg(p, FAST_MATH_CLI_DEFAULT)
+
+
+def add_fast_math_arg(p: argparse.ArgumentParser, default: bool):
+    """--fast-math/--no-fast-math (why the defaults: runtime.FAST_MATH_CLI_DEFAULT)."""
+    p.add_argument("--fast-math", action=argparse.BooleanOptionalAction, default=default,
+                   help="fast floating-point arithmetic in the kernels: about 2x faster, same physics to "
+                        f"rounding; NaN/inf still stop the run (default: {'on' if default else 'off'})")
 
 
 def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
@@ -168,7 +176,7 @@ def load_scene_from_args(args):
 def start_taichi(args):
     from . import runtime
 
-    return runtime.init(args.arch, args.precision)
+    return runtime.init(args.arch, args.precision, fast_math=args.fast_math)
 
 
 def cmd_list(args) -> int:
@@ -314,13 +322,15 @@ def cmd_bench(args) -> int:
     if args.study == "speed-worker":  # internal: one (arch, precision) per process, JSON on stdout
         from .bench.report import run_speed_worker
 
-        runtime.init(args.arch, args.precision, kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
+        runtime.init(args.arch, args.precision, fast_math=args.fast_math,
+                     kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
     default = "out/benchmarks-quick" if args.quick else "docs/benchmarks"
     out_dir = check_output_dir(args.out or default, "--out")
     out_dir.mkdir(parents=True, exist_ok=True)
-    runtime.init("cpu", "f64")
+    # Accuracy and stability run with fast math off unless asked; speed measures both settings.
+    runtime.init("cpu", "f64", fast_math=args.fast_math)
     from .bench import report
 
     bar = Progress(1, f"bench {args.study}")
@@ -399,6 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     p_bench.add_argument("--arch", default="cpu", help=argparse.SUPPRESS)
     p_bench.add_argument("--precision", default="f64", help=argparse.SUPPRESS)
+    add_fast_math_arg(p_bench, False)
     p_bench.set_defaults(func=cmd_bench)
     p_list = sub.add_parser("list", help="list scenes, integrators and backends")
     p_list.set_defaults(func=cmd_list)

@@ -1,34 +1,47 @@
 """Force evaluation shared by every integrator: gravity, Hooke springs, dampers, contact, friction.
 
-``ForceEvaluator.compute(x, v, dt, a)`` is the one place forces are computed; every explicit
-stage calls it on its stage state, and no integrator re-implements a force.
-
 Spring on particle a (seed):  f_a = -ks (|x_a - x_b| - r) l,  l = (x_a - x_b) / |x_a - x_b|
 Damper on particle a (seed):  f_a = -kd ((v_a - v_b) . l) l
+
+``spring_pair_force`` is the one formula; ``ForceEvaluator`` evaluates it two ways:
+
+* ``compute(x, v, dt, a)``: the general reference pass, a[i] for every particle, reading each
+  spring's stiffness through its group (``model.group_k``). Tests and tools use it.
+* the step kernels' pieces (``spring_pass`` + ``accel``): the same forces with each spring's
+  (k, kd) copied next to it (per adjacency entry, or per spring), so the inner loop has no group
+  indirection, and no acceleration buffer: an integrator turns ``accel(x, v, i, dt)`` into the
+  new state of particle i in the same loop. The copies are refreshed from ``model.group_k`` /
+  ``group_kd`` by ``refresh()`` (called before every ``advance``) when those fields changed, so a
+  stiffness changed at run time (the demo's sliders, the stability sweep) acts on the next step.
 """
 
+import numpy as np
 import taichi as ti
 
 
 @ti.func
-def spring_pair_force(model: ti.template(), x: ti.template(), v: ti.template(), a, b, rest, g):
-    """Spring + damper force [N] on particle a from its spring to b (b gets the opposite)."""
+def spring_pair_force(x: ti.template(), v: ti.template(), a, b, rest, k, kd):
+    """Spring + damper force [N] on particle a from its spring to b (b gets the opposite).
+
+    ``k`` [N/m] stiffness, ``kd`` [N s/m] damper coefficient, ``rest`` [m] rest length.
+    """
     f = ti.Vector.zero(float, 3)
     d = x[a] - x[b]
     length = d.norm()
     # A zero-length spring has no direction: it contributes no force rather than NaN.
     if length > 0:
         l = d * (1.0 / length)
-        f = -(model.group_k[g] * (length - rest) + model.group_kd[g] * (v[a] - v[b]).dot(l)) * l
+        f = -(k * (length - rest) + kd * (v[a] - v[b]).dot(l)) * l
     return f
 
 
 @ti.func
 def gather_spring_force(model: ti.template(), x: ti.template(), v: ti.template(), i):
-    """Sum of spring and damper forces [N] on particle i, evaluated from i's adjacency list."""
+    """Sum of spring and damper forces [N] on particle i, from i's adjacency list (group lookup)."""
     f = ti.Vector.zero(float, 3)
     for e in range(model.adj_offset[i], model.adj_offset[i + 1]):
-        f += spring_pair_force(model, x, v, i, model.adj_other[e], model.adj_rest[e], model.adj_group[e])
+        g = model.adj_group[e]
+        f += spring_pair_force(x, v, i, model.adj_other[e], model.adj_rest[e], model.group_k[g], model.group_kd[g])
     return f
 
 
@@ -42,17 +55,79 @@ class ForceEvaluator:
       sums its springs' forces (signed by which end it is). Each spring is evaluated once; best
       when one thread runs the whole step (serial launches on a CPU).
     * ``gather``: each particle evaluates all of its springs itself (every spring twice). One
-      loop, no shared buffer and no atomics; best for many threads over large bodies.
+      loop, no shared buffer and no atomics; best for many threads over large bodies. A step
+      built on it must read the old state and write the new one to other buffers (ping-pong).
+
+    ``fused=False`` (implicit integrators, which assemble their own systems) allocates no
+    per-spring parameter copies.
     """
 
-    def __init__(self, model, terrain, strategy: str = "per_spring"):
+    def __init__(self, model, terrain, strategy: str = "per_spring", fused: bool = True):
         if strategy not in ("per_spring", "gather"):
             raise ValueError(f"unknown force strategy {strategy!r}")
         self.model = model
         self.terrain = terrain
         self.strategy = strategy
-        self.spring_f = ti.Vector.field(3, float, max(model.n_springs, 1)) if strategy == "per_spring" else None
+        m = max(model.n_springs, 1)
+        self.spring_f = ti.Vector.field(3, float, m) if strategy == "per_spring" else None
+        # (k [N/m], kd [N s/m]) of each spring (per_spring) or each adjacency entry (gather).
+        self.kkd = None
+        if fused:
+            self.kkd = ti.Vector.field(2, float, m if strategy == "per_spring" else 2 * m)
+        self._seen = None  # group_k, group_kd as last copied into kkd
 
+    # -- parameter copies ----------------------------------------------------------------------
+    def refresh(self):
+        """Copy the groups' stiffness and damping into ``kkd`` if they changed since the last copy."""
+        if self.kkd is None or self.model.n_springs == 0:
+            return
+        seen = (self.model.group_k.to_numpy(), self.model.group_kd.to_numpy())
+        if self._seen is not None and all(np.array_equal(s, t) for s, t in zip(seen, self._seen)):
+            return
+        self._fill_kkd()
+        self._seen = seen
+
+    @ti.kernel
+    def _fill_kkd(self):
+        m = self.model
+        if ti.static(self.strategy == "per_spring"):
+            for s in range(m.n_springs):
+                g = m.spring_group[s]
+                self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])
+        else:
+            for e in range(2 * m.n_springs):
+                g = m.adj_group[e]
+                self.kkd[e] = ti.Vector([m.group_k[g], m.group_kd[g]])
+
+    # -- step-kernel pieces ---------------------------------------------------------------------
+    @ti.func
+    def spring_pass(self, x: ti.template(), v: ti.template()):
+        """per_spring only: store every spring's force [N] (a top-level loop); gather: nothing."""
+        m = self.model
+        if ti.static(self.strategy == "per_spring"):
+            for s in range(m.n_springs):
+                ends = m.spring_ends[s]
+                kkd = self.kkd[s]
+                self.spring_f[s] = spring_pair_force(x, v, ends[0], ends[1], m.spring_rest[s], kkd[0], kkd[1])
+
+    @ti.func
+    def accel(self, x: ti.template(), v: ti.template(), i, dt):
+        """Acceleration [m/s^2] of particle i at state (x, v); per_spring needs ``spring_pass`` first."""
+        m = self.model
+        f = ti.Vector.zero(float, 3)
+        if ti.static(self.strategy == "per_spring"):
+            # Two branch-free runs: springs where i is end a (+f), then end b (-f).
+            for e in range(m.adj_offset[i], m.adj_split[i]):
+                f += self.spring_f[m.adj_spring[e]]
+            for e in range(m.adj_split[i], m.adj_offset[i + 1]):
+                f -= self.spring_f[-m.adj_spring[e] - 1]
+        else:
+            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                kkd = self.kkd[e]
+                f += spring_pair_force(x, v, i, m.adj_other[e], m.adj_rest[e], kkd[0], kkd[1])
+        return self.particle_accel(x, v, i, f, dt)
+
+    # -- shared ------------------------------------------------------------------------------------
     @ti.func
     def particle_accel(self, x: ti.template(), v: ti.template(), i, f_springs, dt):
         """Acceleration of particle i given its spring force sum; adds gravity and contact."""
@@ -66,22 +141,17 @@ class ForceEvaluator:
     def compute(self, x: ti.template(), v: ti.template(), dt, a: ti.template()):
         """a[i] = acceleration of every particle at state (x, v). ``dt`` [s] caps friction.
 
-        Contains top-level loops: called from a kernel's top level they run in parallel, called
-        inside a serial loop they run serially.
+        The general reference pass (group lookups, an acceleration buffer). Contains top-level
+        loops: called from a kernel's top level they run in parallel, inside a serial loop serially.
         """
         m = self.model
         if ti.static(self.strategy == "per_spring"):
             for s in range(m.n_springs):
                 ends = m.spring_ends[s]
-                self.spring_f[s] = spring_pair_force(m, x, v, ends[0], ends[1], m.spring_rest[s], m.spring_group[s])
+                g = m.spring_group[s]
+                self.spring_f[s] = spring_pair_force(x, v, ends[0], ends[1], m.spring_rest[s], m.group_k[g], m.group_kd[g])
             for i in range(m.n_particles):
-                f = ti.Vector.zero(float, 3)
-                # Two branch-free runs: springs where i is end a (+f), then end b (-f).
-                for e in range(m.adj_offset[i], m.adj_split[i]):
-                    f += self.spring_f[m.adj_spring[e]]
-                for e in range(m.adj_split[i], m.adj_offset[i + 1]):
-                    f -= self.spring_f[-m.adj_spring[e] - 1]
-                a[i] = self.particle_accel(x, v, i, f, dt)
+                a[i] = self.accel(x, v, i, dt)  # sums the stored spring forces
         else:
             for i in range(m.n_particles):
                 a[i] = self.particle_accel(x, v, i, gather_spring_force(m, x, v, i), dt)
