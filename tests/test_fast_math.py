@@ -5,7 +5,7 @@ import pytest
 import taichi as ti
 
 from taichi_soft import runtime
-from taichi_soft.forces import ForceEvaluator
+from taichi_soft.forces import ForceEvaluator, slab_order
 from taichi_soft.integrators import REGISTRY, make_integrator
 
 from physics_helpers import build, simulate, stretched
@@ -50,18 +50,25 @@ def reference_step(model, terrain, name, x, v, dt):
     return x + dt * sum(c * k[0] for c, k in zip(b, ks)), v + dt * sum(c * k[1] for c, k in zip(b, ks))
 
 
-@pytest.mark.parametrize("mode", ["serial", "parallel"])
-def test_fused_steps_match_the_reference_force_pass(mode):
-    """Every explicit method's fused step (both launch modes, so both force strategies) against
-    steps built from ``ForceEvaluator.compute``: equal to f64 rounding. Advancing 1 then 2 steps
-    checks that ping-pong buffers leave the state where it belongs for odd and even counts."""
-    model, terrain = build(n=3, size=1.0, gravity=(0.0, -9.8, 0.0))
+# (launch mode, force strategy, integrators): every strategy, both scatter launch modes with all
+# methods, ping-pong (one-stage methods with gathered forces) both ways.
+FUSED_CASES = [("serial", "scatter", EXPLICIT), ("parallel", "scatter", ["explicit_euler", "semi_implicit_euler", "rk4"]),
+               ("parallel", "gather", ["explicit_euler", "semi_implicit_euler", "midpoint"]),
+               ("serial", "gather", ["semi_implicit_euler"]), ("serial", "per_spring", ["rk4"])]
+
+
+@pytest.mark.parametrize("mode, forces, names", FUSED_CASES, ids=[f"{m}-{f}" for m, f, _ in FUSED_CASES])
+def test_fused_steps_match_the_reference_force_pass(mode, forces, names):
+    """Fused steps against steps built from ``ForceEvaluator.compute`` (group lookups, an
+    acceleration buffer): equal to f64 rounding. A 6^3 cube spans three scatter slabs. Advancing
+    1 then 2 steps checks that ping-pong leaves the state in place for odd and even counts."""
+    model, terrain = build(n=6, size=1.0, gravity=(0.0, -9.8, 0.0))
     rng = np.random.default_rng(5)
     x0 = stretched(model)
     v0 = rng.standard_normal(x0.shape)
     dt = 2e-3
-    for name in EXPLICIT:
-        integ = make_integrator(name, model, terrain, {"mode": mode})
+    for name in names:
+        integ = make_integrator(name, model, terrain, {"mode": mode, "forces": forces})
         state = model.state()
         state.set(x0, v0)
         x, v = x0, v0
@@ -70,8 +77,24 @@ def test_fused_steps_match_the_reference_force_pass(mode):
                 x, v = reference_step(model, terrain, name, x, v, dt)
             assert integ.advance(state, dt, steps) == steps
             xe, ve = state.numpy()
-            np.testing.assert_allclose(xe, x, rtol=0, atol=1e-12, err_msg=f"{name} {mode} x after {steps}")
-            np.testing.assert_allclose(ve, v, rtol=0, atol=1e-9, err_msg=f"{name} {mode} v after {steps}")
+            np.testing.assert_allclose(xe, x, rtol=0, atol=1e-12, err_msg=f"{name} {mode} {forces} x after {steps}")
+            np.testing.assert_allclose(ve, v, rtol=0, atol=1e-9, err_msg=f"{name} {mode} {forces} v after {steps}")
+
+
+def test_scatter_slabs_of_one_parity_share_no_particle():
+    """The parallel scatter's race freedom: within the even (odd) slabs no particle is an end of
+    two springs of different slabs, on a rotated cube (springs at every angle)."""
+    model, _ = build(n=7, size=2.0, rotation_axis=(1.0, 2.0, 0.5), rotation_degrees=37.0)
+    order, starts = slab_order(model.x0_np, model.pairs_np)
+    assert len(starts) - 1 >= 3 and starts[-1] == model.n_springs
+    assert np.array_equal(np.sort(order), np.arange(model.n_springs))
+    pairs = model.pairs_np[order]
+    for parity in (0, 1):
+        owner = np.full(model.n_particles, -1)
+        for slab in range(parity, len(starts) - 1, 2):
+            ends = np.unique(pairs[starts[slab]:starts[slab + 1]])
+            assert (owner[ends] == -1).all(), f"slab {slab} shares a particle with slab {owner[ends].max()}"
+            owner[ends] = slab
 
 
 def test_stiffness_change_reaches_the_fused_kernels():

@@ -45,6 +45,9 @@ class Integrator:
     OPTIONS = {
         "mode": ("auto", lambda v: v in ("auto", "serial", "parallel"),
                  "auto, serial (many steps per launch on one thread) or parallel (one launch per step)"),
+        "forces": ("auto", lambda v: v in ("auto", "scatter", "per_spring", "gather"),
+                   "auto, scatter (each spring once, added to both ends), per_spring (each spring once, "
+                   "stored) or gather (each particle evaluates its springs)"),
     }
 
     def __init__(self, model, terrain, options: dict | None = None):
@@ -61,9 +64,8 @@ class Integrator:
         # Body-body contact (collision.BodyContacts) or None; read with ti.static at first compile,
         # so it must be set before the first step.
         self.contacts = None
-        # Serial launches evaluate each spring once; parallel ones gather without atomics.
-        self.forces = ForceEvaluator(model, terrain, "per_spring" if self._serial() else "gather",
-                                     fused=not self.implicit)
+        self.forces = ForceEvaluator(model, terrain, self._force_strategy(), fused=not self.implicit,
+                                     parallel=not self._serial())
         self.ping_pong = False  # subclasses: True if _step_into replaces _step_body
         self._xo = self._vo = None  # the second state buffers of ping-pong steps
 
@@ -136,6 +138,12 @@ class Integrator:
         return {"force_evaluations_per_step": self.force_evals}
 
     # -- launch strategies ------------------------------------------------------------------
+    def _force_strategy(self) -> str:
+        if self.options["forces"] != "auto":
+            return self.options["forces"]
+        # Measured fastest at every size in both launch modes (docs/benchmarks).
+        return "scatter"
+
     def _serial(self) -> bool:
         if self.mode == "auto":
             return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64) and self.n <= SERIAL_MAX_PARTICLES
