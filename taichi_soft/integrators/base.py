@@ -141,8 +141,10 @@ class Integrator:
     def _force_strategy(self) -> str:
         if self.options["forces"] != "auto":
             return self.options["forces"]
-        # Measured fastest at every size in both launch modes (docs/benchmarks).
-        return "scatter"
+        # CPU: scatter measured fastest at every size in both launch modes (docs/benchmarks).
+        # GPU: the slab passes would run one slab per thread; a gather keeps every thread busy.
+        on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+        return "scatter" if on_cpu else "gather"
 
     def _serial(self) -> bool:
         if self.mode == "auto":
