@@ -308,13 +308,15 @@ class _Stepper:
                 return max(1, min(20000, round(k * REPEAT_SECONDS / max(t, 1e-9))))
             k *= 4
 
-    def timed(self, chunk: int) -> float:
+    def timed(self, chunk: int, cpu: bool = False):
+        """Wall seconds of ``chunk`` steps from the start state (and this process's CPU seconds)."""
         self.reset()
         self.sync()
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         self.advance(chunk)
         self.sync()
-        return time.perf_counter() - t0
+        wall, used = time.perf_counter() - t0, time.process_time() - c0
+        return (wall, used) if cpu else wall
 
 
 def _worker_main():
@@ -339,7 +341,8 @@ def _worker_main():
         if not cmd or cmd[0] == "quit":
             break
         if cmd[0] == "run":
-            print(json.dumps({"s": st.timed(chunk)}), file=out, flush=True)
+            wall, used = st.timed(chunk, cpu=True)
+            print(json.dumps({"s": wall, "cpu_s": used}), file=out, flush=True)
         elif cmd[0] == "state":  # state STEPS PATH: the positions after STEPS steps from the start
             st.reset()
             st.advance(int(cmd[1]))
@@ -389,7 +392,8 @@ class _Worker:
 def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, progress=None) -> list[dict]:
     """Median steps/s of every spec, measured interleaved by group (specs with the same "group"
     run together: one timed repeat of each in turn, ``rounds`` times, the order rotated each
-    round). Also the max abs difference of each final state after ``check_steps`` steps from the
+    round); also steps per CPU second of the worker process (all its threads), which a loaded
+    machine distorts less than wall time. Also the max abs difference of each final state after ``check_steps`` steps from the
     group's first spec (the engine in f64 without fast math, or at one thread)."""
     import tempfile
 
@@ -410,9 +414,12 @@ def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, pr
                 workers.append(_Worker(spec))
             live = [w for w in workers if w is not None and "error" not in w.info]
             times = {id(w): [] for w in live}
+            cpu = {id(w): [] for w in live}
             for r in range(rounds):
                 for w in live[r % max(len(live), 1):] + live[:r % max(len(live), 1)]:
-                    times[id(w)].append(w.ask("run")["s"])
+                    answer = w.ask("run")
+                    times[id(w)].append(answer["s"])
+                    cpu[id(w)].append(answer["cpu_s"])
             finals = {}
             with tempfile.TemporaryDirectory() as tmp:
                 for k, w in enumerate(live):
@@ -433,6 +440,7 @@ def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, pr
                     chunk = w.info["chunk"]
                     row.update(mode=w.info["mode"], springs=w.info["springs"], chunk=chunk, repeats=len(ts),
                                steps_per_s=chunk / med, ns_per_spring=med / chunk / w.info["springs"] * 1e9,
+                               steps_per_cpu_s=chunk / max(statistics.median(cpu[id(w)]), 1e-9),
                                spread=(max(ts) - min(ts)) / med,
                                max_abs_diff=float(np.abs(finals[id(w)] - ref).max()))
                 rows.append(row)
