@@ -124,7 +124,7 @@ def test_fast_math_same_physics_to_rounding():
     to a few hundred ulps of the positions (f64: 1e-12 m on ~1 m; f32: 2e-5 m)."""
     try:
         for precision, tol, name, mode in (("f64", 1e-12, "semi_implicit_euler", "parallel"),
-                                           ("f32", 2e-5, "rk4", "serial")):
+                                           ("f32", 2e-5, "midpoint", "serial")):
             final = []
             for fast_math in (False, True):
                 runtime.init("cpu", precision, fast_math=fast_math)
@@ -143,8 +143,10 @@ def test_divergence_caught_with_fast_math_nan_and_inf():
         for precision in ("f64", "f32"):
             runtime.init("cpu", precision, fast_math=True)
             model, terrain, x0 = _scene()
-            for name, mode in (("semi_implicit_euler", "serial"), ("semi_implicit_euler", "parallel"),
-                               ("rk4", "parallel")):
+            cases = [("semi_implicit_euler", "serial"), ("semi_implicit_euler", "parallel")]
+            if precision == "f64":  # a multi-stage method once (its compile is the slow part)
+                cases.append(("rk4", "parallel"))
+            for name, mode in cases:
                 integ = make_integrator(name, model, terrain, {"mode": mode})
                 state = model.state()
                 for inject in (np.nan, np.inf, -np.inf):
