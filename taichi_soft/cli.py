@@ -97,8 +97,8 @@ def add_scene_args(p: argparse.ArgumentParser, integrator_default_help="the scen
 def add_fast_math_arg(p: argparse.ArgumentParser, default: bool):
     """--fast-math/--no-fast-math (why the defaults: runtime.FAST_MATH_CLI_DEFAULT)."""
     p.add_argument("--fast-math", action=argparse.BooleanOptionalAction, default=default,
-                   help="fast floating-point arithmetic in the kernels: about 2x faster, same physics to "
-                        f"rounding; NaN/inf still stop the run (default: {'on' if default else 'off'})")
+                   help="fast floating-point arithmetic in the kernels (FMA contraction, reordering): the same "
+                        f"physics to rounding; NaN/inf still stop the run (default: {'on' if default else 'off'})")
 
 
 def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
