@@ -90,7 +90,7 @@ def finite_or_none(obj):
 
 # -- commands --------------------------------------------------------------------------------
 def add_scene_args(p: argparse.ArgumentParser, integrator_default_help="the scene's", integrator=True):
-    from .runtime import ARCHS, PRECISIONS
+    from .runtime import ARCHS, FAST_MATH_CLI_DEFAULT, PRECISIONS
 
     p.add_argument("--scene", default="plane", help="scene name in scenes/ or a path to a .toml file (default: plane)")
     if integrator:
@@ -101,6 +101,14 @@ def add_scene_args(p: argparse.ArgumentParser, integrator_default_help="the scen
                    help="override a scene key by dotted path, e.g. body.0.stretch.k=5000 (repeatable)")
     p.add_argument("--arch", default="cpu", choices=None, help=f"backend: {', '.join(ARCHS)} (default: cpu)")
     p.add_argument("--precision", default="f64", help=f"float precision: {', '.join(PRECISIONS)} (default: f64)")
+    add_fast_math_arg(p, FAST_MATH_CLI_DEFAULT)
+
+
+def add_fast_math_arg(p: argparse.ArgumentParser, default: bool):
+    """--fast-math/--no-fast-math (why the defaults: runtime.FAST_MATH_CLI_DEFAULT)."""
+    p.add_argument("--fast-math", action=argparse.BooleanOptionalAction, default=default,
+                   help="fast floating-point arithmetic in the kernels (FMA contraction, reordering): the same "
+                        f"physics to rounding; NaN/inf still stop the run (default: {'on' if default else 'off'})")
 
 
 def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
@@ -178,7 +186,7 @@ def load_scene_from_args(args):
 def start_taichi(args):
     from . import runtime
 
-    return runtime.init(args.arch, args.precision)
+    return runtime.init(args.arch, args.precision, fast_math=args.fast_math)
 
 
 def cmd_list(args) -> int:
@@ -363,7 +371,8 @@ def cmd_bench(args) -> int:
     if args.study == "speed-worker":  # internal: one (arch, precision) per process, JSON on stdout
         from .bench.report import run_speed_worker
 
-        runtime.init(args.arch, args.precision, kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
+        runtime.init(args.arch, args.precision, fast_math=args.fast_math,
+                     kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
     if args.study in ("speed", "memory") and (args.workers is not None or args.scheduler is not None):
@@ -518,6 +527,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_task_args(p_bench)
     p_bench.add_argument("--arch", default="cpu", help=argparse.SUPPRESS)
     p_bench.add_argument("--precision", default="f64", help=argparse.SUPPRESS)
+    add_fast_math_arg(p_bench, False)
     p_bench.set_defaults(func=cmd_bench)
     p_gal = sub.add_parser("gallery", help="every terrain x integrator video, a compare mosaic per terrain, "
                                               "and an index.html that shows them all")

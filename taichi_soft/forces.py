@@ -1,60 +1,194 @@
 """Force evaluation shared by every integrator: gravity, Hooke springs, dampers, contact, friction.
 
-``ForceEvaluator.compute(x, v, dt, a)`` is the one place forces are computed; every explicit
-stage calls it on its stage state, and no integrator re-implements a force.
-
 Spring on particle a (seed):  f_a = -ks (|x_a - x_b| - r) l,  l = (x_a - x_b) / |x_a - x_b|
 Damper on particle a (seed):  f_a = -kd ((v_a - v_b) . l) l
+
+``spring_pair_force`` is the one formula; ``ForceEvaluator`` evaluates it two ways:
+
+* ``compute(x, v, dt, a)``: the general reference pass, a[i] for every particle, reading each
+  spring's stiffness through its group (``model.group_k``). Tests and tools use it.
+* the step kernels' pieces (``spring_pass`` + ``accel``): the same forces with each spring's
+  (k, kd) copied next to it (per adjacency entry, or per spring), so the inner loop has no group
+  indirection, and no acceleration buffer: an integrator turns ``accel(x, v, i, dt)`` into the
+  new state of particle i in the same loop. The copies are refreshed from ``model.group_k`` /
+  ``group_kd`` by ``refresh()`` (called before every ``advance``) when those fields changed, so a
+  stiffness changed at run time (the demo's sliders, the stability sweep) acts on the next step.
 """
 
+import numpy as np
 import taichi as ti
 
 from .model import end_b_spring
 
 
 @ti.func
-def spring_pair_force(model: ti.template(), x: ti.template(), v: ti.template(), a, b, rest, g):
-    """Spring + damper force [N] on particle a from its spring to b (b gets the opposite)."""
+def spring_pair_force(x: ti.template(), v: ti.template(), a, b, rest, k, kd):
+    """Spring + damper force [N] on particle a from its spring to b (b gets the opposite).
+
+    ``k`` [N/m] stiffness, ``kd`` [N s/m] damper coefficient, ``rest`` [m] rest length.
+    """
     f = ti.Vector.zero(float, 3)
     d = x[a] - x[b]
     length = d.norm()
     # A zero-length spring has no direction: it contributes no force rather than NaN.
     if length > 0:
         l = d * (1.0 / length)
-        f = -(model.group_k[g] * (length - rest) + model.group_kd[g] * (v[a] - v[b]).dot(l)) * l
+        f = -(k * (length - rest) + kd * (v[a] - v[b]).dot(l)) * l
     return f
 
 
 @ti.func
 def gather_spring_force(model: ti.template(), x: ti.template(), v: ti.template(), i):
-    """Sum of spring and damper forces [N] on particle i, evaluated from i's adjacency list."""
+    """Sum of spring and damper forces [N] on particle i, from i's adjacency list (group lookup)."""
     f = ti.Vector.zero(float, 3)
     for e in range(model.adj_offset[i], model.adj_offset[i + 1]):
-        f += spring_pair_force(model, x, v, i, model.adj_other[e], model.adj_rest[e], model.adj_group[e])
+        g = model.adj_group[e]
+        f += spring_pair_force(x, v, i, model.adj_other[e], model.adj_rest[e], model.group_k[g], model.group_kd[g])
     return f
+
+
+STRATEGIES = ("scatter", "per_spring", "gather")
 
 
 @ti.data_oriented
 class ForceEvaluator:
     """Evaluates every particle's acceleration [m/s^2] from gravity, springs, dampers and contact.
 
-    Two strategies give the same forces:
+    Three strategies give the same forces (to rounding: they sum a particle's springs in
+    different orders):
 
+    * ``scatter``: one pass over springs evaluates each spring once and adds its force to both
+      ends' force sums with plain (non-atomic) adds; the particle pass reads and clears its sum.
+      Serial launches run the springs in one loop. Parallel launches split the body into slabs
+      along x at least one spring long, so a spring touches only its own slab and the next one:
+      the even slabs run in parallel, then the odd ones, and no two threads ever add to the
+      same particle. The fastest on the CPU (docs/benchmarks), the default of both launch modes.
     * ``per_spring``: one pass over springs stores each spring's force once, then each particle
-      sums its springs' forces (signed by which end it is). Each spring is evaluated once; best
-      when one thread runs the whole step (serial launches on a CPU).
+      sums its springs' forces (signed by which end it is).
     * ``gather``: each particle evaluates all of its springs itself (every spring twice). One
-      loop, no shared buffer and no atomics; best for many threads over large bodies.
+      loop, no shared buffer and no atomics. A step built on it must read the old state and
+      write the new one to other buffers (ping-pong).
+
+    ``parallel``: the step runs in parallel launches (scatter then uses its slab passes).
+    ``fused=False`` (implicit integrators, which assemble their own systems) allocates nothing
+    for the step kernels, only what ``compute`` needs.
     """
 
-    def __init__(self, model, terrain, strategy: str = "per_spring"):
-        if strategy not in ("per_spring", "gather"):
+    def __init__(self, model, terrain, strategy: str = "per_spring", fused: bool = True, parallel: bool = False):
+        if strategy not in STRATEGIES:
             raise ValueError(f"unknown force strategy {strategy!r}")
+        if strategy == "scatter" and not fused:
+            strategy = "per_spring"  # compute() has no scatter path
         self.model = model
         self.terrain = terrain
         self.strategy = strategy
-        self.spring_f = ti.Vector.field(3, float, max(model.n_springs, 1)) if strategy == "per_spring" else None
+        self.parallel = parallel
+        m = max(model.n_springs, 1)
+        self.spring_f = ti.Vector.field(3, float, m) if strategy == "per_spring" else None
+        # (k [N/m], kd [N s/m]) of each spring (per_spring, scatter) or adjacency entry (gather).
+        self.kkd = None
+        if fused:
+            self.kkd = ti.Vector.field(2, float, 2 * m if strategy == "gather" else m)
+        self._seen = None  # group_k, group_kd as last copied into kkd
+        if strategy == "scatter":
+            self._build_scatter(m)
 
+    def _build_scatter(self, m):
+        """Springs sorted by slab (ends, rest length, group in that order) and the force sums."""
+        model = self.model
+        self.f = ti.Vector.field(3, float, model.n_particles)  # per-particle force sums [N], kept at 0 between passes
+        self.s_ends = ti.Vector.field(2, ti.i32, m)
+        self.s_rest = ti.field(float, m)
+        self.s_group = ti.field(ti.i32, m)
+        order, starts = slab_order(model.x0_np, model.pairs_np)
+        self.n_slabs = len(starts) - 1
+        self.slab_start = ti.field(ti.i32, len(starts))
+        self.slab_start.from_numpy(starts.astype(np.int32))
+        if model.n_springs:
+            self.s_ends.from_numpy(model.pairs_np[order].astype(np.int32))
+            self.s_rest.from_numpy(model.rest_np[order].astype(model.real))
+            self.s_group.from_numpy(model.group_np[order].astype(np.int32))
+
+    # -- parameter copies ----------------------------------------------------------------------
+    def refresh(self):
+        """Copy the groups' stiffness and damping into ``kkd`` if they changed since the last copy."""
+        if self.kkd is None or self.model.n_springs == 0:
+            return
+        seen = (self.model.group_k.to_numpy(), self.model.group_kd.to_numpy())
+        if self._seen is not None and all(np.array_equal(s, t) for s, t in zip(seen, self._seen)):
+            return
+        self._fill_kkd()
+        self._seen = seen
+
+    @ti.kernel
+    def _fill_kkd(self):
+        m = self.model
+        if ti.static(self.strategy == "per_spring"):
+            for s in range(m.n_springs):
+                g = m.spring_group[s]
+                self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])
+        elif ti.static(self.strategy == "scatter"):
+            for s in range(m.n_springs):
+                g = self.s_group[s]
+                self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])
+        else:
+            for e in range(2 * m.n_springs):
+                g = m.adj_group[e]
+                self.kkd[e] = ti.Vector([m.group_k[g], m.group_kd[g]])
+
+    # -- step-kernel pieces ---------------------------------------------------------------------
+    @ti.func
+    def spring_pass(self, x: ti.template(), v: ti.template()):
+        """per_spring only: store every spring's force [N] (a top-level loop); gather: nothing."""
+        m = self.model
+        if ti.static(self.strategy == "per_spring"):
+            for s in range(m.n_springs):
+                ends = m.spring_ends[s]
+                kkd = self.kkd[s]
+                self.spring_f[s] = spring_pair_force(x, v, ends[0], ends[1], m.spring_rest[s], kkd[0], kkd[1])
+        elif ti.static(self.strategy == "scatter" and self.parallel):
+            for parity in ti.static(range(2)):
+                # one slab per task: slabs of one parity share no particle
+                ti.loop_config(block_dim=1)
+                for k in range((self.n_slabs - parity + 1) // 2):
+                    slab = 2 * k + parity
+                    for s in range(self.slab_start[slab], self.slab_start[slab + 1]):
+                        self._scatter(x, v, s)
+        elif ti.static(self.strategy == "scatter"):
+            for s in range(m.n_springs):
+                self._scatter(x, v, s)
+
+    @ti.func
+    def _scatter(self, x: ti.template(), v: ti.template(), s):
+        """Add spring s's force to both ends' sums (plain adds: see the class docstring)."""
+        ends = self.s_ends[s]
+        kkd = self.kkd[s]
+        f = spring_pair_force(x, v, ends[0], ends[1], self.s_rest[s], kkd[0], kkd[1])
+        self.f[ends[0]] = self.f[ends[0]] + f
+        self.f[ends[1]] = self.f[ends[1]] - f
+
+    @ti.func
+    def accel(self, x: ti.template(), v: ti.template(), i, dt):
+        """Acceleration [m/s^2] of particle i at state (x, v), once per particle and pass;
+        per_spring and scatter need ``spring_pass`` first."""
+        m = self.model
+        f = ti.Vector.zero(float, 3)
+        if ti.static(self.strategy == "per_spring"):
+            # Two branch-free runs: springs where i is end a (+f), then end b (-f).
+            for e in range(m.adj_offset[i], m.adj_split[i]):
+                f += self.spring_f[m.adj_spring[e]]
+            for e in range(m.adj_split[i], m.adj_offset[i + 1]):
+                f -= self.spring_f[end_b_spring(m.adj_spring[e])]
+        elif ti.static(self.strategy == "scatter"):
+            f = self.f[i]
+            self.f[i] = ti.Vector.zero(float, 3)  # ready for the next pass
+        else:
+            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                kkd = self.kkd[e]
+                f += spring_pair_force(x, v, i, m.adj_other[e], m.adj_rest[e], kkd[0], kkd[1])
+        return self.particle_accel(x, v, i, f, dt)
+
+    # -- shared ------------------------------------------------------------------------------------
     @ti.func
     def particle_accel(self, x: ti.template(), v: ti.template(), i, f_springs, dt):
         """Acceleration of particle i given its spring force sum; adds gravity and contact."""
@@ -68,25 +202,41 @@ class ForceEvaluator:
     def compute(self, x: ti.template(), v: ti.template(), dt, a: ti.template()):
         """a[i] = acceleration of every particle at state (x, v). ``dt`` [s] caps friction.
 
-        Contains top-level loops: called from a kernel's top level they run in parallel, called
-        inside a serial loop they run serially.
+        The general reference pass (group lookups, an acceleration buffer). Contains top-level
+        loops: called from a kernel's top level they run in parallel, inside a serial loop serially.
         """
         m = self.model
         if ti.static(self.strategy == "per_spring"):
             for s in range(m.n_springs):
                 ends = m.spring_ends[s]
-                self.spring_f[s] = spring_pair_force(m, x, v, ends[0], ends[1], m.spring_rest[s], m.spring_group[s])
+                g = m.spring_group[s]
+                self.spring_f[s] = spring_pair_force(x, v, ends[0], ends[1], m.spring_rest[s], m.group_k[g], m.group_kd[g])
             for i in range(m.n_particles):
-                f = ti.Vector.zero(float, 3)
-                # Two branch-free runs: springs where i is end a (+f), then end b (-f).
-                for e in range(m.adj_offset[i], m.adj_split[i]):
-                    f += self.spring_f[m.adj_spring[e]]  # end-a entries: the code is the spring id
-                for e in range(m.adj_split[i], m.adj_offset[i + 1]):
-                    f -= self.spring_f[end_b_spring(m.adj_spring[e])]
-                a[i] = self.particle_accel(x, v, i, f, dt)
+                a[i] = self.accel(x, v, i, dt)  # sums the stored spring forces
         else:
             for i in range(m.n_particles):
                 a[i] = self.particle_accel(x, v, i, gather_spring_force(m, x, v, i), dt)
+
+
+def slab_order(x0, pairs):
+    """Springs sorted into slabs along x for the parallel scatter: (order, slab starts).
+
+    Slab thickness is just over the longest spring's x extent (at the start positions ``x0``
+    [m]), so a spring's two ends lie in the same slab or in neighbouring ones; each spring goes
+    to its lower end's slab. Springs of slabs 0, 2, 4, ... then touch pairwise different
+    particles, and so do those of slabs 1, 3, 5, ... Any particle indexing works (no lattice).
+    """
+    if len(pairs) == 0:
+        return np.zeros(0, np.int64), np.zeros(2, np.int64)
+    xs = np.asarray(x0, np.float64)[:, 0]
+    a, b = pairs[:, 0], pairs[:, 1]
+    extent = float(np.abs(xs[a] - xs[b]).max())
+    thickness = extent * (1 + 1e-6) + 1e-9
+    slab = np.floor((xs - xs.min()) / thickness).astype(np.int64)
+    spring_slab = np.minimum(slab[a], slab[b])
+    order = np.argsort(spring_slab, kind="stable")
+    starts = np.searchsorted(spring_slab[order], np.arange(int(slab.max()) + 2))
+    return order, starts
 
 
 @ti.data_oriented

@@ -39,7 +39,7 @@ BODY_DEFAULTS = {
 RENDER_DEFAULTS = {"fps": 30, "resolution": [1280, 720], "camera": {}}
 CAMERA_KEYS = {"position", "lookat", "up", "fov"}
 TOP_KEYS = ("sim", "body", "terrain", "contact", "render", "solver")
-MAX_N = 200  # particles per cube edge: 8 million particles is already beyond any device here
+MAX_N = 200  # particles per cube edge (8 million particles); whether a size fits is memory.check_fits's call
 
 
 def scene_names() -> list[str]:

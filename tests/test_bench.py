@@ -92,7 +92,7 @@ def test_bench_report_quick_writes_every_file(cli, tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     expected = ["REPORT.md", "accuracy_smooth.csv", "accuracy_smooth_wall.png", "accuracy_smooth_evals.png",
                 "accuracy_drop.csv", "accuracy_drop_wall.png", "accuracy_drop_evals.png", "stability_terrain.csv",
-                "stability_stiffness.csv", "stability_stiffness.png", "speed.csv", "speed.json",
+                "stability_stiffness.csv", "stability_stiffness.png", "speed.csv", "speed_equal.csv", "speed.json",
                 "speed_cpu_f64.png", "speed_cpu_f32.png"]
     for name in expected:
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
@@ -104,4 +104,9 @@ def test_bench_report_quick_writes_every_file(cli, tmp_path):
     speed_rows = list(csv.DictReader(open(out / "speed.csv")))
     assert {r["integrator"] for r in speed_rows} >= {"explicit_euler", "semi_implicit_euler", "midpoint", "rk4"}
     assert all(float(r["steps_per_s"]) > 0 for r in speed_rows)
+    # equal settings: fast math off and on take the same steps to the same state (f64 rounding)
+    assert "### Equal settings, interleaved" in report
+    equal = {(r["kind"], r["fast_math"]): r for r in csv.DictReader(open(out / "speed_equal.csv"))}
+    for key in (("engine", "False"), ("engine", "True")):
+        assert float(equal[key]["steps_per_s"]) > 0 and float(equal[key]["max_abs_diff"]) < 1e-12
     assert "fitted orders (smooth)" in r.stdout

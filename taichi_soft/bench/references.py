@@ -66,7 +66,8 @@ def warp_available() -> bool:
 class WarpStepper:
     """Semi-implicit Euler in NVIDIA Warp on ``device`` ("cpu" or "cuda")."""
 
-    def __init__(self, model, x, v, dt, precision="f64", device="cpu"):
+    def __init__(self, model, x, v, dt, precision="f64", device="cpu", fast_math=False):
+        """``fast_math``: Warp's own ``fast_math`` module option (its fastest setting)."""
         import warp as wp
 
         wp.config.quiet = True
@@ -77,7 +78,7 @@ class WarpStepper:
         vec = wp.vec3d if precision == "f64" else wp.vec3f
         npreal = np.float64 if precision == "f64" else np.float32
         a, b, rest, k, kd, inv_m = spring_arrays(model)
-        self.springs, self.integrate = _warp_kernels(real, vec)
+        self.springs, self.integrate = _warp_kernels(fast_math)
         arr = lambda data, dtype: wp.array(np.ascontiguousarray(data), dtype=dtype, device=device)  # noqa: E731
         self.a = arr(a.astype(np.int32), wp.int32)
         self.b = arr(b.astype(np.int32), wp.int32)
@@ -111,12 +112,17 @@ class WarpStepper:
 _WARP_KERNELS = None
 
 
-def _warp_kernels(real, vec):
-    """The two Warp kernels, generic over precision (Warp builds one overload per dtype)."""
+def _warp_kernels(fast_math=False):
+    """The two Warp kernels, generic over precision (Warp builds one overload per dtype).
+
+    The module's options are fixed when its kernels are first built: one setting per process.
+    """
     global _WARP_KERNELS
     if _WARP_KERNELS is not None:
         return _WARP_KERNELS
     import warp as wp
+
+    wp.set_module_options({"fast_math": bool(fast_math)})
 
     @wp.kernel
     def springs(x: wp.array(dtype=Any), v: wp.array(dtype=Any), a: wp.array(dtype=wp.int32),

@@ -227,7 +227,7 @@ def speed_configs() -> list[tuple[str, str]]:
 
 def run_speed_worker(quick: bool) -> dict:
     """Inside one (arch, precision) process: engine rows, numpy/Warp comparison, bandwidth, profile."""
-    from .speed import bytes_per_step, compare_references, kernel_profile, measured_bandwidth
+    from .speed import bytes_per_step, kernel_profile, measured_bandwidth
 
     from .. import runtime
 
@@ -248,23 +248,24 @@ def run_speed_worker(quick: bool) -> dict:
             if REGISTRY[name].implicit and n > 40:
                 continue  # implicit methods at 80^3 take minutes per repeat here; measured up to 40^3
             rows.append(measure_speed(name, n, repeats=2 if quick else 5))
-    refs = [compare_references(n, cfg["precision"], 20 if quick else (200 if n <= 20 else 20), repeats=2 if quick else 5)
-            for n in (sizes if quick else (10, 40))]
     bw = measured_bandwidth(32 if quick else 256)
     real_bytes = 8 if cfg["precision"] == "f64" else 4
     bound = []
     for r in rows:
         if r["integrator"] != "semi_implicit_euler":
             continue
-        strategy = "per_spring" if r["mode"] == "serial" else "gather"
-        b = bytes_per_step(r["particles"], r["springs"], real_bytes, strategy)
+        b = bytes_per_step(r["particles"], r["springs"], real_bytes, r["forces"])
         bound.append({"n": r["n"], "bytes_per_step": b, "bound_steps_per_s": bw / b,
                       "measured_steps_per_s": r["steps_per_s"], "fraction_of_bound": r["steps_per_s"] * b / bw})
-    return {"config": cfg, "rows": rows, "references": refs, "bandwidth_bytes_per_s": bw, "bound": bound, "profile": profile}
+    return {"config": cfg, "rows": rows, "bandwidth_bytes_per_s": bw, "bound": bound, "profile": profile}
 
 
 def run_speed(quick: bool, progress=None) -> dict:
-    """One subprocess per (arch, precision) configuration (Taichi initialises once per process)."""
+    """One subprocess per (arch, precision) configuration (Taichi initialises once per process),
+    fast math on (the command line's default); then the equal-settings comparison, interleaved."""
+    from ..runtime import available_archs
+    from .speed import equal_settings, equal_settings_specs, quick_specs
+
     results, interrupted = [], False
     configs = speed_configs()
     for k, (arch, precision) in enumerate(configs):
@@ -272,7 +273,7 @@ def run_speed(quick: bool, progress=None) -> dict:
             if profile and (arch, precision) != configs[0]:
                 continue
             cmd = [sys.executable, str(ROOT / "main.py"), "bench", "speed-worker", "--arch", arch, "--precision",
-                   precision] + (["--quick"] if quick else [])
+                   precision, "--fast-math"] + (["--quick"] if quick else [])
             env = dict(os.environ, TAICHI_SOFT_PROFILE="1" if profile else "0")
             try:
                 proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
@@ -291,7 +292,15 @@ def run_speed(quick: bool, progress=None) -> dict:
             break
         if progress:
             progress(k + 1, len(configs), f"speed {arch} {precision}")
-    return {"configs": results, "interrupted": interrupted}
+    equal = []
+    if not interrupted:
+        gpus = tuple(a for a in available_archs() if a == "cuda")
+        specs = quick_specs() if quick else equal_settings_specs(archs=("cpu",) + gpus)
+        try:
+            equal = equal_settings(specs, rounds=2 if quick else 7, progress=progress)
+        except KeyboardInterrupt:
+            interrupted = True
+    return {"configs": results, "equal_settings": equal, "load_average": os.getloadavg(), "interrupted": interrupted}
 
 
 def write_speed(result: dict, out_dir: Path) -> list[str]:
@@ -308,8 +317,9 @@ def write_speed(result: dict, out_dir: Path) -> list[str]:
         plots.speed_bars(res["rows"], out_dir / f"speed_{tag}.png", f"{tag}: ns per particle-step (lower is better)")
         files.append(f"speed_{tag}.png")
     write_csv(all_rows, out_dir / "speed.csv")
+    write_csv(result.get("equal_settings", []), out_dir / "speed_equal.csv")
     (out_dir / "speed.json").write_text(json.dumps(result, indent=1))
-    return files + ["speed.csv", "speed.json"]
+    return files + ["speed.csv", "speed_equal.csv", "speed.json"]
 
 
 # -- memory ------------------------------------------------------------------------------------------------
@@ -391,8 +401,11 @@ def stability_markdown(result: dict) -> str:
 def speed_markdown(result: dict) -> str:
     out = ["## Kernel speed", "",
            "Median steps/s over repeats after a warm-up (`ti.sync()` before each clock read), the default cube "
-           "(edge 4 m) of n^3 particles dropped on the plane, dt = 1 ms. `launch`: serial = many steps per "
-           "kernel launch on one thread, parallel = one launch per step over all cores.", ""]
+           "(edge 4 m) of n^3 particles dropped on the plane, dt = 1 ms, fast math on (the command line's "
+           "default). `launch`: serial = many steps per kernel launch on one thread, parallel = one launch per "
+           "step over all cores.", ""]
+    if result.get("equal_settings"):
+        out += equal_settings_markdown(result["equal_settings"], result.get("load_average", ()))
     for res in result["configs"]:
         cfg = res["config"]
         out.append(f"### {cfg['arch']}, {cfg['precision']}")
@@ -403,15 +416,7 @@ def speed_markdown(result: dict) -> str:
         from .speed import table
 
         out += [table(res["rows"]), "", f"![speed {cfg['arch']} {cfg['precision']}](speed_{cfg['arch']}_{cfg['precision']}.png)", ""]
-        out += ["Semi-implicit Euler on the same cube without terrain, same steps from the same state "
-                "(final states agree to the max abs difference shown):", "",
-                "| n | engine steps/s | numpy steps/s | Warp CPU steps/s | engine / Warp | engine / numpy | max abs diff (numpy, Warp) [m] |",
-                "|---:|---:|---:|---:|---:|---:|---|"]
-        for r in res["references"]:
-            out.append(f"| {r['n']} | {r['engine_steps_per_s']:,.0f} | {r['numpy_steps_per_s']:,.0f} | "
-                       f"{_fmt(r.get('warp_cpu_steps_per_s'), ',.0f')} | {_fmt(r.get('ratio_engine_over_warp_cpu'), '.2f')} | "
-                       f"{r['ratio_engine_over_numpy']:.1f} | {r['max_abs_diff_numpy']:.1e}, {_fmt(r.get('max_abs_diff_warp'), '.1e')} |")
-        out += ["", f"Measured copy bandwidth: {res['bandwidth_bytes_per_s'] / 1e9:.1f} GB/s. Memory-bandwidth bound of a "
+        out += [f"Measured copy bandwidth: {res['bandwidth_bytes_per_s'] / 1e9:.1f} GB/s. Memory-bandwidth bound of a "
                 "semi-implicit step (compulsory traffic / bandwidth). A fraction above 1 means the working set "
                 "fits in cache, where main-memory bandwidth does not bound the step:", "",
                 "| n | bytes / step | bound steps/s | measured steps/s | fraction of bound |", "|---:|---:|---:|---:|---:|"]
@@ -426,6 +431,76 @@ def speed_markdown(result: dict) -> str:
                 out.append(f"| {t['task']} | {t['ms_per_step']:.4f} | {t['share']:.0%} |")
             out.append("")
     return "\n".join(out)
+
+
+GOALS = (  # issue 12: (label, numerator row, denominator row, goal ratio)
+    ("f32 + fast math / Warp CPU f32, n = 10", dict(group="n10", kind="engine", precision="f32", fast_math=True),
+     dict(group="n10", kind="warp", precision="f32", arch="cpu"), 2.0),
+    ("f32 + fast math / Warp CPU f32, n = 40", dict(group="n40", kind="engine", precision="f32", fast_math=True),
+     dict(group="n40", kind="warp", precision="f32", arch="cpu"), 3.0),
+    ("f64 + fast math / Warp CPU f64, n = 40", dict(group="n40", kind="engine", precision="f64", fast_math=True),
+     dict(group="n40", kind="warp", precision="f64", arch="cpu"), 2.0),
+    ("2 threads / 1 thread, f32, n = 40", dict(group="threads_n40", precision="f32", threads=2),
+     dict(group="threads_n40", precision="f32", threads=1), 1.7),
+    ("2 threads / 1 thread, f64, n = 40", dict(group="threads_n40", precision="f64", threads=2),
+     dict(group="threads_n40", precision="f64", threads=1), None),
+    ("2 threads / 1 thread, f32, n = 80", dict(group="threads_n80", precision="f32", threads=2),
+     dict(group="threads_n80", precision="f32", threads=1), None),
+    ("2 threads / 1 thread, f64, n = 80", dict(group="threads_n80", precision="f64", threads=2),
+     dict(group="threads_n80", precision="f64", threads=1), None),
+)
+
+
+def equal_settings_markdown(rows: list[dict], load) -> list[str]:
+    from .speed import find_row
+
+    out = ["### Equal settings, interleaved", "",
+           "Semi-implicit Euler on the default cube without terrain, started stretched (springs and dampers all "
+           "working), dt = 1 ms, the same steps from the same state in every column. Each configuration runs in its "
+           "own process (precision, fast math and thread count are fixed when Taichi or Warp starts); after "
+           "compiling and a warm-up the processes time one repeat (about 0.25 s of steps) each in turn, round after "
+           "round, so the ratios below come from one interleaved run. Median steps/s; spread = (max - min) / median "
+           "of the repeats. Warp: its CPU backend (one thread) with its `fast_math` module option. `ns / spring`: "
+           "wall time per step over the number of springs. `steps / CPU s`: steps per second of the worker's CPU "
+           "time (all its threads): on a loaded machine, where other processes take the cores, it is the steadier "
+           "measure of the code itself (for 2 threads it counts both). `max abs diff`: final positions after 20 steps against "
+           "the group's first row (f64, fast math off; at 1 thread for the scaling rows) [m]. "
+           f"Load average (1, 5, 15 min) when the study ended: {', '.join(f'{x:.2f}' for x in load)}.", "",
+           "| group | code | arch | precision | fast math | threads | launch, forces | steps/s | ns / spring | spread | steps / CPU s | max abs diff [m] |",
+           "|---|---|---|---|---|---:|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        code = {"engine": "taichi-soft", "numpy": "numpy", "warp": "Warp"}[r["kind"]]
+        if "error" in r:
+            reason = r["error"].strip().splitlines()[-1][:200] if r["error"].strip() else "failed"
+            out.append(f"| {r['group']} | {code} | {r['arch']} | {r['precision']} | | | | not run: {reason} | | | | |")
+            continue
+        fm = "-" if r.get("fast_math") is None else ("on" if r["fast_math"] else "off")
+        threads = r["threads"] if r.get("threads") else ("all" if r["kind"] == "engine" else "1" if r["kind"] == "warp" else "-")
+        out.append(f"| {r['group']} | {code} | {r['arch']} | {r['precision']} | {fm} | {threads} | {r['mode'] or '-'} | "
+                   f"{r['steps_per_s']:,.0f} | {r['ns_per_spring']:.2f} | {r['spread']:.0%} | "
+                   f"{r['steps_per_cpu_s']:,.0f} | {r['max_abs_diff']:.1e} |")
+    ratios = []
+    for label, num, den, goal in GOALS:
+        a, b = find_row(rows, **num), find_row(rows, **den)
+        if a is None or b is None:
+            continue
+        ratio = a["steps_per_s"] / b["steps_per_s"]
+        per_cpu = a["steps_per_cpu_s"] / b["steps_per_cpu_s"] if a.get("threads") is None else None
+        ratios.append(f"| {label} | {ratio:.2f} | {_fmt(per_cpu, '.2f')} | {'-' if goal is None else f'>= {goal:g}'} |")
+    for prec in ("f64", "f32"):
+        for n in (10, 40):
+            on = find_row(rows, group=f"n{n}", kind="engine", precision=prec, fast_math=True, arch="cpu")
+            off = find_row(rows, group=f"n{n}", kind="engine", precision=prec, fast_math=False, arch="cpu")
+            npy = find_row(rows, group=f"n{n}", kind="numpy", precision=prec)
+            for label, a, b in (("fast math on / off", on, off), ("engine (fast math) / numpy", on, npy)):
+                if a and b:
+                    ratios.append(f"| {label}, {prec}, n = {n} | {a['steps_per_s'] / b['steps_per_s']:.2f} | "
+                                  f"{a['steps_per_cpu_s'] / b['steps_per_cpu_s']:.2f} | - |")
+    if ratios:
+        out += ["", "Ratios of medians (wall time; per CPU second where both sides are the default thread count):", "",
+                "| ratio (same run) | wall | per CPU s | goal |", "|---|---:|---:|---:|", *ratios]
+    out.append("")
+    return out
 
 
 def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | None, speed: dict | None,

@@ -40,6 +40,7 @@ def measure(integrator: str, n: int, mode: str = "auto", chunk: int | None = Non
     med = statistics.median(times)
     return {
         "integrator": integrator, "n": n, "particles": n**3, "springs": sim.model.n_springs, "mode": "serial" if sim.integrator._serial() else "parallel",
+        "forces": sim.integrator.forces.strategy,
         "chunk": chunk, "repeats": len(times), "median_s": med, "steps_per_s": chunk / med,
         "ns_per_particle_step": med / chunk / n**3 * 1e9, "realtime_factor": chunk * sim.dt / med,
         "diverged": sim.diverged,
@@ -158,17 +159,21 @@ def measured_bandwidth(mbytes: int = 256, repeats: int = 5) -> float:
 def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: str) -> int:
     """Compulsory memory traffic [bytes] of one semi-implicit Euler step (each array touched once).
 
-    Particles: read x, v; write x, v; write then read the acceleration; mass and inverse mass.
-    ``per_spring``: springs' ends (2 i32), rest length, group (i32), the spring force written and
-    read; adjacency: 2 i32 per spring end plus offsets and splits. ``gather``: per adjacency entry
-    the other end (i32), rest length and group (i32), plus offsets.
+    Particles: read x, v; write x, v; the force sum (scatter: written by the spring pass, read
+    and cleared by the particle pass; per_spring, gather: the particle pass's own sum, free);
+    inverse mass. Per spring: (k, kd). ``scatter``: ends (2 i32), rest length.
+    ``per_spring``: ends, rest length, the spring force written and read; adjacency: 1 i32 per
+    spring end plus offsets and splits. ``gather``: per adjacency entry the other end (i32),
+    rest length and (k, kd), plus offsets.
     """
     vec = 3 * real_bytes
-    particles = n_particles * (6 * vec + 2 * real_bytes)
+    particles = n_particles * (4 * vec + real_bytes)
+    if strategy == "scatter":
+        return particles + n_particles * 2 * vec + n_springs * (8 + 3 * real_bytes)
     if strategy == "per_spring":
-        springs = n_springs * (8 + real_bytes + 4 + 2 * vec) + 2 * n_springs * 4 + 2 * n_particles * 4
+        springs = n_springs * (8 + 3 * real_bytes + 2 * vec) + 2 * n_springs * 4 + 2 * n_particles * 4
     else:
-        springs = 2 * n_springs * (4 + real_bytes + 4) + n_particles * 4
+        springs = 2 * n_springs * (4 + 3 * real_bytes) + n_particles * 4
     return particles + springs
 
 
@@ -199,3 +204,263 @@ def kernel_profile(integrator: str, n: int, steps: int = 50) -> list[dict]:
             rows.append({"task": name.split("_kernel_", 1)[-1], "calls": s.counter, "ms_per_step": s.total_time / steps,
                          "share": s.total_time / total if total else 0.0})
     return rows
+
+
+# -- equal settings, interleaved: engine f32/f64 x fast math, numpy, Warp; thread scaling ----------
+# Each configuration needs its own Taichi runtime (precision, fast math and thread count are fixed
+# at ti.init), so each runs in a worker process that builds its stepper, compiles and warms up,
+# then times one repeat whenever the coordinator asks. The coordinator asks the workers in turn,
+# round after round (one running at a time), so slow drifts of the machine's load hit every
+# configuration alike and the ratios come from one run.
+REFERENCE_SCENE = ["terrain.kind=none", "body.0.initial_stretch=[1.05, 0.97, 1.0]"]
+REPEAT_SECONDS = 0.25  # work per timed repeat
+
+
+def quick_specs() -> list[dict]:
+    """A 4^3 cube, f64: the engine with fast math off and on, and Warp (checks the machinery; each
+    worker costs a Taichi start and a compile, so numpy is left to the full study)."""
+    base = {"group": "n4", "arch": "cpu", "precision": "f64", "threads": None, "n": 4}
+    return [{**base, "kind": "engine", "fast_math": False}, {**base, "kind": "engine", "fast_math": True},
+            {**base, "kind": "warp", "fast_math": True}]
+
+
+def equal_settings_specs(sizes=(10, 40), scaling_sizes=(40, 80), archs=("cpu",)) -> list[dict]:
+    """Worker configurations: per size, the engine in f64/f32 with fast math off/on and numpy and
+    Warp in f64/f32 (Warp with its fast_math module option); per scaling size, the engine with
+    fast math at 1 and 2 threads. GPU archs add the engine and Warp there."""
+    specs = []
+    for n in sizes:
+        for precision in ("f64", "f32"):
+            for fm in (False, True):
+                specs.append({"group": f"n{n}", "kind": "engine", "arch": "cpu", "precision": precision,
+                              "fast_math": fm, "threads": None, "n": n})
+            specs.append({"group": f"n{n}", "kind": "numpy", "arch": "cpu", "precision": precision, "n": n})
+            specs.append({"group": f"n{n}", "kind": "warp", "arch": "cpu", "precision": precision,
+                          "fast_math": True, "n": n})
+            for arch in archs:
+                if arch != "cpu":
+                    specs.append({"group": f"n{n}", "kind": "engine", "arch": arch, "precision": precision,
+                                  "fast_math": True, "threads": None, "n": n})
+                    specs.append({"group": f"n{n}", "kind": "warp", "arch": arch, "precision": precision,
+                                  "fast_math": True, "n": n})
+    for n in scaling_sizes:
+        for precision in ("f64", "f32"):
+            for threads in (1, 2):
+                specs.append({"group": f"threads_n{n}", "kind": "engine", "arch": "cpu", "precision": precision,
+                              "fast_math": True, "threads": threads, "n": n})
+    return specs
+
+
+class _Stepper:
+    """One configuration inside a worker: ``reset()``, ``advance(k)``, ``sync()``, ``x()``."""
+
+    def __init__(self, spec: dict):
+        import numpy as np
+
+        from .. import runtime
+
+        kind, precision = spec["kind"], spec["precision"]
+        init_kw = {}
+        if spec.get("threads"):
+            init_kw["cpu_max_num_threads"] = int(spec["threads"])
+        if kind == "engine":
+            runtime.init(spec["arch"], precision, fast_math=spec["fast_math"], **init_kw)
+        else:  # the model (numpy arrays, spring parameters) comes from the engine's builder
+            runtime.init("cpu", precision)
+        scene = load_scene("plane", [f"body.0.n={spec['n']}", *REFERENCE_SCENE])
+        self.sim = Simulation(scene, integrator="semi_implicit_euler")
+        self.springs = self.sim.model.n_springs
+        model, x0, v0, dt = self.sim.model, self.sim.model.x0_np, self.sim.model.v0_np, self.sim.dt
+        real = np.float64 if precision == "f64" else np.float32
+        self.kind = kind
+        self.mode = ""
+        if kind == "engine":
+            self.reset, self.advance, self.sync = self.sim.reset, self.sim.advance, ti.sync
+            self.x = lambda: self.sim.state.x.to_numpy()
+            self.mode = ("serial" if self.sim.integrator._serial() else "parallel") + f", {self.sim.integrator.forces.strategy}"
+        elif kind == "numpy":
+            from .references import NumpyStepper
+
+            nps = NumpyStepper(model, x0, v0, dt, real)
+
+            def reset():
+                nps.x[:] = x0
+                nps.v[:] = v0
+            self.reset, self.advance, self.sync, self.x = reset, nps.step, (lambda: None), (lambda: nps.x.copy())
+        else:
+            from .references import WarpStepper
+
+            ws = WarpStepper(model, x0, v0, dt, precision, spec["arch"], fast_math=spec["fast_math"])
+
+            def reset():
+                ws.x.assign(np.asarray(x0, real))
+                ws.v.assign(np.asarray(v0, real))
+            self.reset, self.advance, self.sync, self.x = reset, ws.step, ws.sync, (lambda: ws.numpy()[0])
+
+    def calibrate(self) -> int:
+        """Warm up (compile), then the step count of about REPEAT_SECONDS of work."""
+        self.advance(2)
+        self.sync()
+        k = 1
+        while True:
+            t = self.timed(k)
+            if t > 0.05 or k >= 4096:
+                t = min(t, self.timed(k), self.timed(k))  # a load spike must not shrink the chunk
+                return max(1, min(20000, round(k * REPEAT_SECONDS / max(t, 1e-9))))
+            k *= 4
+
+    def timed(self, chunk: int, cpu: bool = False):
+        """Wall seconds of ``chunk`` steps from the start state (and this process's CPU seconds)."""
+        self.reset()
+        self.sync()
+        c0, t0 = time.process_time(), time.perf_counter()
+        self.advance(chunk)
+        self.sync()
+        wall, used = time.perf_counter() - t0, time.process_time() - c0
+        return (wall, used) if cpu else wall
+
+
+def _worker_main():
+    """Worker loop: one JSON spec as argv[1]; then commands on stdin, one JSON answer per line."""
+    import json
+    import sys
+
+    import numpy as np
+
+    spec = json.loads(sys.argv[1])
+    out = sys.stdout
+    sys.stdout = sys.stderr  # only the protocol goes to the real stdout
+    try:
+        st = _Stepper(spec)
+        chunk = st.calibrate()
+    except Exception as e:  # noqa: BLE001 - reported to the coordinator, which reports it
+        print(json.dumps({"error": f"{type(e).__name__}: {e}"}), file=out, flush=True)
+        return
+    print(json.dumps({"chunk": chunk, "springs": st.springs, "mode": st.mode}), file=out, flush=True)
+    for line in sys.stdin:
+        cmd = line.split()
+        if not cmd or cmd[0] == "quit":
+            break
+        if cmd[0] == "run":
+            wall, used = st.timed(chunk, cpu=True)
+            print(json.dumps({"s": wall, "cpu_s": used}), file=out, flush=True)
+        elif cmd[0] == "state":  # state STEPS PATH: the positions after STEPS steps from the start
+            st.reset()
+            st.advance(int(cmd[1]))
+            st.sync()
+            np.save(cmd[2], np.asarray(st.x(), np.float64))
+            print(json.dumps({"ok": True}), file=out, flush=True)
+
+
+class _Worker:
+    def __init__(self, spec: dict):
+        import json
+        import subprocess
+        import sys
+
+        self.spec = spec
+        self.proc = subprocess.Popen([sys.executable, "-m", "taichi_soft.bench.speed", json.dumps(spec)],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     cwd=str(__import__("pathlib").Path(__file__).resolve().parents[2]))
+        self.info = self._read()
+
+    def _read(self) -> dict:
+        import json
+
+        line = self.proc.stdout.readline()
+        if not line:
+            err = self.proc.stderr.read().strip().splitlines()
+            return {"error": (err[-1] if err else "worker exited")[:300]}
+        return json.loads(line)
+
+    def ask(self, cmd: str) -> dict:
+        self.proc.stdin.write(cmd + "\n")
+        self.proc.stdin.flush()
+        return self._read()
+
+    def close(self):
+        try:
+            self.proc.stdin.write("quit\n")
+            self.proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            self.proc.wait(timeout=30)
+        except Exception:  # noqa: BLE001
+            self.proc.kill()
+
+
+def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, progress=None) -> list[dict]:
+    """Median steps/s of every spec, measured interleaved by group (specs with the same "group"
+    run together: one timed repeat of each in turn, ``rounds`` times, the order rotated each
+    round); also steps per CPU second of the worker process (all its threads), which a loaded
+    machine distorts less than wall time. Also the max abs difference of each final state after ``check_steps`` steps from the
+    group's first spec (the engine in f64 without fast math, or at one thread)."""
+    import tempfile
+
+    import numpy as np
+
+    from .references import warp_available
+
+    rows = []
+    groups = list(dict.fromkeys(s["group"] for s in specs))
+    for gi, group in enumerate(groups):
+        members = [s for s in specs if s["group"] == group]
+        workers = []
+        try:
+            for spec in members:  # started one after the other: compiling is not timed, but is busy
+                if spec["kind"] == "warp" and not warp_available():
+                    workers.append(None)
+                    continue
+                workers.append(_Worker(spec))
+            live = [w for w in workers if w is not None and "error" not in w.info]
+            times = {id(w): [] for w in live}
+            cpu = {id(w): [] for w in live}
+            for r in range(rounds):
+                for w in live[r % max(len(live), 1):] + live[:r % max(len(live), 1)]:
+                    answer = w.ask("run")
+                    times[id(w)].append(answer["s"])
+                    cpu[id(w)].append(answer["cpu_s"])
+            finals = {}
+            with tempfile.TemporaryDirectory() as tmp:
+                for k, w in enumerate(live):
+                    path = f"{tmp}/x{k}.npy"
+                    w.ask(f"state {check_steps} {path}")
+                    finals[id(w)] = np.load(path)
+            ref = finals[id(live[0])] if live else None
+            for spec, w in zip(members, workers):
+                row = {k: spec.get(k) for k in ("group", "kind", "arch", "precision", "fast_math", "threads", "n")}
+                row["particles"] = spec["n"] ** 3
+                if w is None:
+                    row["error"] = "warp-lang is not installed (pip install warp-lang)"
+                elif "error" in w.info:
+                    row["error"] = w.info["error"]
+                else:
+                    ts = times[id(w)]
+                    med = statistics.median(ts)
+                    chunk = w.info["chunk"]
+                    row.update(mode=w.info["mode"], springs=w.info["springs"], chunk=chunk, repeats=len(ts),
+                               steps_per_s=chunk / med, ns_per_spring=med / chunk / w.info["springs"] * 1e9,
+                               steps_per_cpu_s=chunk / max(statistics.median(cpu[id(w)]), 1e-9),
+                               spread=(max(ts) - min(ts)) / med,
+                               max_abs_diff=float(np.abs(finals[id(w)] - ref).max()))
+                rows.append(row)
+        finally:
+            for w in workers:
+                if w is not None:
+                    w.close()
+        if progress:
+            progress(gi + 1, len(groups), f"equal settings {group}")
+    return rows
+
+
+def find_row(rows, **key):
+    """The row whose fields equal ``key`` (None if absent or failed)."""
+    for r in rows:
+        if all(r.get(k) == v for k, v in key.items()) and "error" not in r:
+            return r
+    return None
+
+
+if __name__ == "__main__":
+    _worker_main()

@@ -9,6 +9,11 @@ particles; this base class runs it two ways from the same source:
   faster this way;
 * parallel: one launch per step, each particle loop spread over all cores (or GPU threads).
 
+A one-stage method whose forces are gathered (each particle reads its neighbours' old state)
+cannot update the state in place; it sets ``ping_pong = True`` and writes
+``_step_into(x, v, xo, vo, dt, step)`` (read (x, v), write the new state to (xo, vo)); the
+drivers alternate the state with a second pair of buffers and leave the result in the state.
+
 Every step ends with ``_finish`` per particle: the terrain's collision response (projection and
 restitution, the same for every method) and the divergence check (any non-finite velocity or
 |v|^2 > limit); then, in scenes with several bodies, the body-body contact pass
@@ -40,6 +45,9 @@ class Integrator:
     OPTIONS = {
         "mode": ("auto", lambda v: v in ("auto", "serial", "parallel"),
                  "auto, serial (many steps per launch on one thread) or parallel (one launch per step)"),
+        "forces": ("auto", lambda v: v in ("auto", "scatter", "per_spring", "gather"),
+                   "auto, scatter (each spring once, added to both ends), per_spring (each spring once, "
+                   "stored) or gather (each particle evaluates its springs)"),
     }
 
     def __init__(self, model, terrain, options: dict | None = None):
@@ -56,8 +64,10 @@ class Integrator:
         # Body-body contact (collision.BodyContacts) or None; read with ti.static at first compile,
         # so it must be set before the first step.
         self.contacts = None
-        # Serial launches evaluate each spring once; parallel ones gather without atomics.
-        self.forces = ForceEvaluator(model, terrain, "per_spring" if self._serial() else "gather")
+        self.forces = ForceEvaluator(model, terrain, self._force_strategy(), fused=not self.implicit,
+                                     parallel=not self._serial())
+        self.ping_pong = False  # subclasses: True if _step_into replaces _step_body
+        self._xo = self._vo = None  # the second state buffers of ping-pong steps
 
     @classmethod
     def parse_options(cls, given: dict) -> dict:
@@ -82,11 +92,28 @@ class Integrator:
         if n_steps <= 0 or self.diverged:
             return 0
         start = self._step_counter
-        if self._serial():
-            self._advance_serial(state.x, state.v, dt, start, n_steps)
+        self.forces.refresh()
+        x, v = state.x, state.v
+        if self.ping_pong:
+            if self._xo is None:
+                self._xo = ti.Vector.field(3, float, self.n)
+                self._vo = ti.Vector.field(3, float, self.n)
+            xo, vo = self._xo, self._vo
+            if self._serial():
+                self._advance_serial_pp(x, v, xo, vo, dt, start, n_steps)
+            else:
+                for k in range(n_steps):
+                    if k % 2 == 0:
+                        self._advance_parallel_pp(x, v, xo, vo, dt, start + k)
+                    else:
+                        self._advance_parallel_pp(xo, vo, x, v, dt, start + k)
+                if n_steps % 2 == 1:
+                    self._copy_state(xo, vo, x, v)
+        elif self._serial():
+            self._advance_serial(x, v, dt, start, n_steps)
         else:
             for k in range(n_steps):
-                self._advance_parallel(state.x, state.v, dt, start + k)
+                self._advance_parallel(x, v, dt, start + k)
         self._step_counter += n_steps
         bad = int(self.diverged_step[None])
         if bad != NOT_DIVERGED:
@@ -111,6 +138,14 @@ class Integrator:
         return {"force_evaluations_per_step": self.force_evals}
 
     # -- launch strategies ------------------------------------------------------------------
+    def _force_strategy(self) -> str:
+        if self.options["forces"] != "auto":
+            return self.options["forces"]
+        # CPU: scatter measured fastest at every size in both launch modes (docs/benchmarks).
+        # GPU: the slab passes would run one slab per thread; a gather keeps every thread busy.
+        on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+        return "scatter" if on_cpu else "gather"
+
     def _serial(self) -> bool:
         if self.mode == "auto":
             return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64) and self.n <= SERIAL_MAX_PARTICLES
@@ -129,6 +164,36 @@ class Integrator:
     def _advance_parallel(self, x: ti.template(), v: ti.template(), dt: float, step: ti.i32):
         self._step_body(x, v, dt, step)
         self._body_contacts(x, v, dt)
+
+    @ti.kernel
+    def _advance_serial_pp(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template(), dt: float,
+                           start: ti.i32, n_steps: ti.i32):
+        ti.loop_config(serialize=True)
+        for s in range(n_steps):
+            if s % 2 == 0:
+                self._step_into(x, v, xo, vo, dt, start + s)
+                self._body_contacts(xo, vo, dt)
+            else:
+                self._step_into(xo, vo, x, v, dt, start + s)
+                self._body_contacts(x, v, dt)
+            if self.diverged_step[None] != NOT_DIVERGED or s == n_steps - 1:
+                if s % 2 == 0:  # the last step wrote the second buffers: the state must hold it
+                    for i in range(self.n):
+                        x[i] = xo[i]
+                        v[i] = vo[i]
+                break
+
+    @ti.kernel
+    def _advance_parallel_pp(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template(),
+                             dt: float, step: ti.i32):
+        self._step_into(x, v, xo, vo, dt, step)
+        self._body_contacts(xo, vo, dt)
+
+    @ti.kernel
+    def _copy_state(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template()):
+        for i in range(self.n):
+            xo[i] = x[i]
+            vo[i] = v[i]
 
     @ti.kernel
     def _k_body_contacts(self, x: ti.template(), v: ti.template(), dt: float):
@@ -151,9 +216,22 @@ class Integrator:
             xn, vn = self.terrain.respond(i, xn, vn)
         x[i] = xn
         v[i] = vn
-        # Written so that NaN fails the test too (comparisons with NaN are false).
-        if not (vn.dot(vn) <= self.speed2_limit[None]):
+        speed2 = vn.dot(vn)  # NaN if any component is NaN, inf if any is infinite
+        if _not_finite(speed2) or speed2 > self.speed2_limit[None]:
             ti.atomic_min(self.diverged_step[None], step)
+
+
+@ti.func
+def _not_finite(s):
+    """True if the float ``s`` is NaN or +-inf, read from its bits (exponent all ones).
+
+    With fast math the compiler may assume no NaN and drop a float test such as ``s != s`` or
+    ``not (s <= limit)``; integer operations on the bit pattern it must keep.
+    """
+    if ti.static(ti.lang.impl.get_runtime().default_fp == ti.f64):
+        return ((ti.bit_cast(s, ti.i64) >> 52) & 0x7FF) == 0x7FF
+    else:
+        return ((ti.bit_cast(s, ti.i32) >> 23) & 0xFF) == 0xFF
 
 
 REGISTRY: dict[str, type] = {}

@@ -3,6 +3,14 @@
 ``SemiImplicitEuler`` (symplectic Euler) is its own class; explicit Euler, midpoint and RK4 are
 one generic explicit Runge-Kutta method driven by their Butcher tableaus, so each is exactly the
 textbook method (RK4: y_{n+1} = y_n + dt/6 (k1 + 2 k2 + 2 k3 + k4)).
+
+Every step is made of fused passes: one loop per force evaluation that computes each
+particle's acceleration and at once what the method does with it (the next stage state, the
+running sum of the final combination, or the new state), with no acceleration buffer.
+With gathered forces a pass reads its neighbours' state, so it must not overwrite the state it
+reads: RK stages alternate between two stage buffers and the last stage writes the step's
+result in place (it reads neighbours only from a stage buffer); one-stage methods ping-pong the
+state itself (``Integrator.ping_pong``).
 """
 
 import taichi as ti
@@ -24,44 +32,84 @@ class ExplicitRungeKutta(Integrator):
     def __init__(self, model, terrain, options=None):
         super().__init__(model, terrain, options)
         stages = len(self.b)
-        # Stage derivatives k_s = (velocity [m/s], acceleration [m/s^2]); stage 0's velocity is v.
-        self.kx = [None] + [ti.Vector.field(3, float, self.n) for _ in range(stages - 1)]
-        self.kv = [ti.Vector.field(3, float, self.n) for _ in range(stages)]
-        self.xs = ti.Vector.field(3, float, self.n)  # stage state
-        self.vs = ti.Vector.field(3, float, self.n)
+        # One stage with gathered forces reads the old state while writing the new: ping-pong.
+        self.ping_pong = stages == 1 and self.forces.strategy == "gather"
+        # Stage derivatives k_j kept only where a stage after the next one still needs them
+        # (none of the tableaus here: each stage uses only the one before it).
+        self._kept = [any(self._a(t, j) != 0 for t in range(j + 2, stages)) for j in range(stages)]
+        self.kx = [ti.Vector.field(3, float, self.n) if self._kept[j] else None for j in range(stages)]
+        self.kv = [ti.Vector.field(3, float, self.n) if self._kept[j] else None for j in range(stages)]
+        # Two stage-state buffers (stage s reads buffer s % 2 ... written by stage s - 1) and
+        # the running sums x_n + dt sum b_j kx_j, v_n + dt sum b_j kv_j of the stages so far.
+        two = stages > 1
+        self.xs = [ti.Vector.field(3, float, self.n) for _ in range(2)] if two else []
+        self.vs = [ti.Vector.field(3, float, self.n) for _ in range(2)] if two else []
+        self.x_acc = ti.Vector.field(3, float, self.n) if two else None
+        self.v_acc = ti.Vector.field(3, float, self.n) if two else None
+
+    def _a(self, s, j):
+        return self.A[s][j] if j < len(self.A[s]) else 0.0
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
-        A, b = ti.static(self.A, self.b)
-        for s in ti.static(range(len(b))):
-            if ti.static(s == 0):
-                self.forces.compute(x, v, dt, self.kv[0])
-            else:
-                for i in range(self.n):
-                    xi, vi = x[i], v[i]
-                    for j in ti.static(range(s)):
-                        if ti.static(A[s][j] != 0):
-                            xi += (dt * A[s][j]) * self._kx(j, v, i)
-                            vi += (dt * A[s][j]) * self.kv[j][i]
-                    self.xs[i] = xi
-                    self.vs[i] = vi
-                    self.kx[s][i] = vi
-                self.forces.compute(self.xs, self.vs, dt, self.kv[s])
-        for i in range(self.n):
-            xn, vn = x[i], v[i]
-            for s in ti.static(range(len(b))):
-                if ti.static(b[s] != 0):
-                    xn += (dt * b[s]) * self._kx(s, v, i)
-                    vn += (dt * b[s]) * self.kv[s][i]
-            self._finish(i, x, v, xn, vn, step)
+        """In place: stage passes through the stage buffers, the last one writes (x, v)."""
+        for s in ti.static(range(len(self.b))):
+            xr, vr, xw, vw = ti.static(*self._stage_buffers(s, x, v))
+            self._stage(x, v, xr, vr, xw, vw, dt, step, s)
+
+    def _stage_buffers(self, s, x, v):
+        """(read x, read v, write x, write v) of stage s: stage s reads buffer s % 2 (stage 0 the
+        state), writes buffer (s + 1) % 2 (the last stage the state)."""
+        xr, vr = (x, v) if s == 0 else (self.xs[s % 2], self.vs[s % 2])
+        xw, vw = (x, v) if s == len(self.b) - 1 else (self.xs[(s + 1) % 2], self.vs[(s + 1) % 2])
+        return xr, vr, xw, vw
 
     @ti.func
-    def _kx(self, s: ti.template(), v: ti.template(), i):
-        """Stage s's velocity for particle i (stage 0's is the start-of-step velocity)."""
-        r = v[i]
-        if ti.static(s > 0):
-            r = self.kx[s][i]
-        return r
+    def _step_into(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template(), dt, step):
+        """One-stage methods with gathered forces: read (x, v), write the new state to (xo, vo)."""
+        self._stage(x, v, x, v, xo, vo, dt, step, 0)
+
+    @ti.func
+    def _stage(self, x: ti.template(), v: ti.template(), xr: ti.template(), vr: ti.template(), xw: ti.template(),
+               vw: ti.template(), dt, step, s: ti.template()):
+        """Stage s: k_s at stage state (xr, vr); write stage s + 1's state, or the new state, to (xw, vw).
+
+        (x, v) is the start-of-step state, read at particle i only.
+        """
+        A, b = ti.static(self.A, self.b)
+        last = ti.static(s == len(b) - 1)
+        self.forces.spring_pass(xr, vr)
+        for i in range(self.n):
+            kx = vr[i]
+            kv = self.forces.accel(xr, vr, i, dt)
+            if ti.static(self._kept[s]):
+                self.kx[s][i] = kx
+                self.kv[s][i] = kv
+            # running sum of the final combination, in the order of the textbook sum
+            xn, vn = x[i], v[i]
+            if ti.static(s > 0):
+                xn, vn = self.x_acc[i], self.v_acc[i]
+            if ti.static(b[s] != 0):
+                xn += (dt * b[s]) * kx
+                vn += (dt * b[s]) * kv
+            if ti.static(last):
+                self._finish(i, xw, vw, xn, vn, step)
+            else:
+                self.x_acc[i] = xn
+                self.v_acc[i] = vn
+                # stage s + 1's state: y_n + dt sum_j A[s+1][j] k_j
+                t = ti.static(s + 1)
+                xi, vi = x[i], v[i]
+                for j in ti.static(range(t)):
+                    if ti.static(self._a(t, j) != 0):
+                        if ti.static(j == s):
+                            xi += (dt * A[t][j]) * kx
+                            vi += (dt * A[t][j]) * kv
+                        else:
+                            xi += (dt * A[t][j]) * self.kx[j][i]
+                            vi += (dt * A[t][j]) * self.kv[j][i]
+                xw[i] = xi
+                vw[i] = vi
 
 
 @register
@@ -89,14 +137,19 @@ class SemiImplicitEuler(Integrator):
 
     def __init__(self, model, terrain, options=None):
         super().__init__(model, terrain, options)
-        self.a = ti.Vector.field(3, float, self.n)
+        self.ping_pong = self.forces.strategy == "gather"
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
-        self.forces.compute(x, v, dt, self.a)
+        """In place (per_spring forces: the particle loop reads only stored spring forces)."""
+        self._step_into(x, v, x, v, dt, step)
+
+    @ti.func
+    def _step_into(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template(), dt, step):
+        self.forces.spring_pass(x, v)
         for i in range(self.n):
-            vn = v[i] + dt * self.a[i]
-            self._finish(i, x, v, x[i] + dt * vn, vn, step)
+            vn = v[i] + dt * self.forces.accel(x, v, i, dt)
+            self._finish(i, xo, vo, x[i] + dt * vn, vn, step)
 
 
 @register
