@@ -411,9 +411,7 @@ def cmd_bench(args) -> int:
         files += report.write_memory(mem, out_dir)
     command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
     name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
-    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem)
-    if name != "REPORT.md":
-        md = md.rename(out_dir / name)
+    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem, name)
     files.append(md.name)
     if acc:
         for case, data in acc["cases"].items():

@@ -26,6 +26,7 @@ from pathlib import Path
 import taichi as ti
 
 from ..integrators import REGISTRY
+from ..outfiles import write_atomic
 from . import accuracy, machine, stability
 from .speed import measure as measure_speed
 
@@ -57,15 +58,23 @@ def _task_runtime():
 
 
 def write_csv(rows: list[dict], path: Path):
-    if not rows:
-        path.write_text("")
-        return
+    """Rows as CSV (columns: every key, in first-seen order), written atomically."""
     keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: r.get(k) for k in keys})
+
+    def write(tmp):
+        with open(tmp, "w", newline="") as f:
+            if not rows:
+                return
+            w = csv.DictWriter(f, fieldnames=keys)
+            w.writeheader()
+            for r in rows:
+                w.writerow({k: r.get(k) for k in keys})
+    write_atomic(Path(path), write)
+
+
+def write_text(path: Path, text: str):
+    """A text file written atomically (a full disk or a kill never leaves half of it)."""
+    write_atomic(Path(path), lambda tmp: Path(tmp).write_text(text))
 
 
 # -- accuracy -------------------------------------------------------------------------------------------
@@ -318,7 +327,7 @@ def write_speed(result: dict, out_dir: Path) -> list[str]:
         files.append(f"speed_{tag}.png")
     write_csv(all_rows, out_dir / "speed.csv")
     write_csv(result.get("equal_settings", []), out_dir / "speed_equal.csv")
-    (out_dir / "speed.json").write_text(json.dumps(result, indent=1))
+    write_text(out_dir / "speed.json", json.dumps(result, indent=1))
     return files + ["speed.csv", "speed_equal.csv", "speed.json"]
 
 
@@ -504,7 +513,9 @@ def equal_settings_markdown(rows: list[dict], load) -> list[str]:
 
 
 def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | None, speed: dict | None,
-                 seconds: float, mem: dict | None = None) -> Path:
+                 seconds: float, mem: dict | None = None, name: str = "REPORT.md") -> Path:
+    """The Markdown report of the studies given, as ``out_dir / name`` (``bench speed`` writes
+    SPEED.md: a single study never replaces the full REPORT.md)."""
     info = machine.describe()
     parts = ["# taichi-soft benchmark report", "",
              f"Command: `{command}` ({seconds / 60:.1f} min)", "", "Machine:", "", machine.markdown(info)]
@@ -524,6 +535,6 @@ def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | Non
         from .memory import markdown as memory_markdown
 
         parts.append(memory_markdown(mem))
-    path = out_dir / "REPORT.md"
-    path.write_text("\n".join(parts) + "\n")
+    path = out_dir / name
+    write_text(path, "\n".join(parts) + "\n")
     return path
