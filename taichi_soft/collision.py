@@ -10,8 +10,10 @@ particles through its faces.
 
 After every step (``Integrator._body_contacts``) the pass
 
-1. hashes every particle into a cell of edge ``cell`` (the largest contact distance) in a table
-   of ``CELL_CAPACITY`` slots per bucket; a particle that finds its bucket full is not seen by
+1. finds each body's bounding box; only particles within the contact distance of another
+   body's box can touch it (bodies apart cost a few passes over the particles, no hash lookups);
+   those are hashed into a cell of edge ``cell`` (the largest contact distance) in a table of
+   ``CELL_CAPACITY`` slots per bucket; a particle that finds its bucket full is not seen by
    others this step and is counted in ``overflows``;
 2. counts each particle's contacts (particles of other bodies closer than r_i + r_j);
 3. computes, per pair, a position correction that removes the overlap and a velocity impulse on
@@ -41,8 +43,9 @@ def table_size(n_particles: int) -> int:
 
 def field_bytes(n_particles: int, real_bytes: int) -> int:
     """Bytes of a ``BodyContacts``'s fields (for the memory model): per bucket a count and
-    ``CELL_CAPACITY`` slots; per particle body, contact count (i32), radius and dx, dv (reals)."""
-    return table_size(n_particles) * (1 + CELL_CAPACITY) * 4 + n_particles * (2 * 4 + 7 * real_bytes)
+    ``CELL_CAPACITY`` slots; per particle body, near flag, contact count (i32), radius and dx, dv
+    (reals)."""
+    return table_size(n_particles) * (1 + CELL_CAPACITY) * 4 + n_particles * (3 * 4 + 7 * real_bytes)
 
 
 def contact_radii(model) -> np.ndarray:
@@ -66,7 +69,11 @@ class BodyContacts:
         self.n = n
         radii = contact_radii(model)
         self.table_size = table_size(n)
+        self.n_bodies = len(model.bodies)
         self.body = ti.field(ti.i32, n)
+        self.near = ti.field(ti.i32, n)  # 1: within the contact distance of another body's box
+        self.lo = ti.Vector.field(3, float, self.n_bodies)  # bounding box of each body [m]
+        self.hi = ti.Vector.field(3, float, self.n_bodies)
         self.radius = ti.field(float, n)
         self.cell = ti.field(float, ())  # hash cell edge [m]: the largest contact distance
         self.count = ti.field(ti.i32, self.table_size)
@@ -104,17 +111,33 @@ class BodyContacts:
     @ti.func
     def apply(self, x: ti.template(), v: ti.template(), dt):
         """Resolve contacts between bodies at state (x, v) in place (one pass, see module doc)."""
+        for b in range(self.n_bodies):
+            self.lo[b] = ti.Vector([1e30, 1e30, 1e30], dt=float)
+            self.hi[b] = ti.Vector([-1e30, -1e30, -1e30], dt=float)
+        for i in range(self.n):
+            b = self.body[i]
+            for c in ti.static(range(3)):
+                ti.atomic_min(self.lo[b][c], x[i][c])
+                ti.atomic_max(self.hi[b][c], x[i][c])
         for h in range(self.table_size):
             self.count[h] = 0
         for i in range(self.n):
-            h = self._bucket(self._cell_of(x[i]))
-            k = ti.atomic_add(self.count[h], 1)
-            if k < CELL_CAPACITY:
-                self.slots[h, k] = i
-            else:
-                ti.atomic_add(self.overflows[None], 1)
+            self.near[i] = 0
+            xi, reach = x[i], self.cell[None]
+            for b in range(self.n_bodies):
+                if b != self.body[i] and all(xi >= self.lo[b] - reach) and all(xi <= self.hi[b] + reach):
+                    self.near[i] = 1
+            if self.near[i]:
+                h = self._bucket(self._cell_of(xi))
+                k = ti.atomic_add(self.count[h], 1)
+                if k < CELL_CAPACITY:
+                    self.slots[h, k] = i
+                else:
+                    ti.atomic_add(self.overflows[None], 1)
         for i in range(self.n):
-            self.contacts[i] = self._visit(x, v, i, _COUNT)
+            self.contacts[i] = 0
+            if self.near[i]:
+                self.contacts[i] = self._visit(x, v, i, _COUNT)
         for _ in ti.static(range(VELOCITY_ITERATIONS)):
             for i in range(self.n):
                 if self.contacts[i] > 0:
@@ -144,8 +167,7 @@ class BodyContacts:
                 j = self.slots[h, k]
                 # Buckets are shared by distant cells (and two neighbour cells may share one):
                 # take j only from the cell it really lies in, so each pair is seen once.
-                cj = self._cell_of(x[j])
-                if self.body[j] != bi and cj.x == c.x and cj.y == c.y and cj.z == c.z:
+                if self.body[j] != bi and all(self._cell_of(x[j]) == c):
                     d = xi - x[j]
                     dist = d.norm()
                     reach = ri + self.radius[j]
