@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import runtime
 from .collision import BodyContacts, contact_radii
 from .errors import UserError
 from .lattice import rotation_matrix
@@ -204,6 +205,7 @@ class Simulation:
             "springs": m.spring_counts(),
             "bodies": len(m.bodies),
             "terrain": self.terrain.kind,
+            **{k: v for k, v in (runtime.current() or {}).items() if k in ("arch", "precision", "fast_math")},
             "diverged": result.diverged,
             "diverged_at": result.diverged_at,
             "wall_seconds": result.wall_seconds,
