@@ -10,6 +10,7 @@ import numpy as np
 import taichi as ti
 
 from ..lattice import SPRING_KINDS
+from ..model import group_kind
 from .camera import CameraSpec
 from .meshes import BODY_COLORS, SurfaceMesh, TriMesh, terrain_meshes
 from .window import open_window, window_rgb
@@ -134,7 +135,7 @@ class SimulationView:
         self.particle_radius = 0.1 * min(b.spec.size / (b.spec.n - 1) for b in model.bodies)
         self.spring_ranges = {}
         if springs and model.n_springs:
-            kind = model.group_np % 3
+            kind = group_kind(model.group_np)
             order = np.argsort(kind, kind="stable")  # springs grouped by kind: one draw call each
             self.spring_indices = np.ascontiguousarray(model.pairs_np[order], dtype=np.int32).ravel()
             counts = np.bincount(kind, minlength=3)
