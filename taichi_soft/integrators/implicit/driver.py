@@ -202,13 +202,17 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.ctl[S.UPDATE] = 0
         capped = self.ctl[S.OUTER] >= self.max_iters[None]
         small = self.ctl[S.OUTER] > 0 and was_update == 0 and self.sc[S.STEP] <= self.velocity_tol[None] * dt
-        if self.sc[S.RES2] <= self.tol2[None] or small or capped:
-            lam_moved = self.sc[S.LAM_CHANGE] > 0.1 * self.sc[S.LAM_SUM] + 1e-300
-            if lam_moved and not capped and self.ctl[S.UPDATES] < self.max_updates[None]:
-                self.ctl[S.UPDATE] = 1
-                self.ctl[S.UPDATES] += 1
-            else:
-                self.ctl[S.DONE] = 1
+        converged = self.sc[S.RES2] <= self.tol2[None] or small
+        # Refreeze the friction multipliers (bounded): at convergence if they moved by more than 10 %,
+        # or at once if they are mostly stale (particles held since the last freeze carry no friction).
+        change = self.sc[S.LAM_CHANGE]
+        stale = change > 0.5 * self.sc[S.LAM_SUM] + 1e-300
+        moved = change > 0.1 * self.sc[S.LAM_SUM] + 1e-300
+        if (stale or (converged and moved)) and not capped and self.ctl[S.UPDATES] < self.max_updates[None]:
+            self.ctl[S.UPDATE] = 1
+            self.ctl[S.UPDATES] += 1
+        elif converged or capped:
+            self.ctl[S.DONE] = 1
         tol = self.cg_tol[None]
         if self.ew_forcing[None]:
             ratio = ti.sqrt(ti.sqrt(self.sc[S.RES2] / ti.max(self.sc[S.RES2_0], 1e-300)))
