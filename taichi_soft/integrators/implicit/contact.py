@@ -105,11 +105,12 @@ class ContactSet:
         return gi
 
     @ti.func
-    def _project(self, i, xi):
-        """Make trial position xi of particle i feasible; writes x_trial, trial_active, trial_normal."""
+    def _project(self, i, xi, moved):
+        """Make trial position xi of particle i feasible (if ``moved``); writes x_trial, trial_active,
+        trial_normal."""
         hit = self.active[i]
         nrm = self.normal[i]
-        if self._free(i):
+        if self._free(i) and moved:
             dist, nq = self.terrain.query(i, xi)
             if hit or dist < 0:
                 xi -= dist * nq

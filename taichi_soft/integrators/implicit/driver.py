@@ -4,7 +4,8 @@ A step (docs/implicit.md):
 
 1. ``_begin_step``: save (x_n, v_n), freeze damper directions, predict y, choose the start
    direction (contact.py) and measure the energy the step begins with.
-2. Feasible start: a line search from x_n along the start direction, beginning at the largest
+2. Reference and feasible start: g(x_n) (a trial at alpha = 0), then a line search from x_n
+   along the start direction, beginning at the largest
    feasible fraction T_MAX, accepting the first fraction with g <= g(x_n) (at most
    ``START_HALVINGS`` halvings, else the step starts at x_n).
 3. Iterations: gradient -> decision (converged? refreeze friction?) -> direction (the subclass:
@@ -125,19 +126,13 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = 0
                     self.lam[i] = 0.0
-        # The reference: g and the spring energy at x_n (alpha = 0).
-        self.sc[S.ALPHA] = 0.0
-        self._trial(x, dt)
-        self.sc[S.F_CUR] = self.sc[S.F_TRIAL]
-        self.sc[S.E_CUR] = self.sc[S.E_TRIAL]
-        self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.G_START] + self.sc[S.E_TRIAL]
-        self.sc[S.H_SCALE] = self.sc[S.K_START] + ti.abs(self.sc[S.G_START]) + self.sc[S.E_TRIAL]
         for k in ti.static(range(S.N_CTL)):
             self.ctl[k] = 0
         self.sc[S.RES_PREV] = 1e30  # no release before a residual is known
         self.sc[S.STEP] = 1e30
         self.n_history[None] = 0
-        self._line_search_begin(self.sc[S.T_MAX], S.START_HALVINGS)
+        # Phase 0 evaluates the reference g(x_n) and E(x_n): one trial at alpha = 0.
+        self._line_search_begin(0.0, 0)
 
     # -- decisions ----------------------------------------------------------------------------------
     @ti.func
@@ -153,7 +148,10 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         """Armijo (c = 1e-4, the objective's round-off tolerated) on the trial just evaluated; at the
         start grad = 0, so the test is g(x_0) <= g(x_n)."""
         f0 = self.sc[S.F_CUR]
-        if self.sc[S.F_TRIAL] - f0 <= 1e-4 * self.sc[S.DEC] + self.roundoff[None] * ti.abs(f0):
+        if self.ctl[S.PHASE] == 0:  # the reference point x_n itself
+            self.ctl[S.ACCEPTED] = 1
+            self.ctl[S.LS_DONE] = 1
+        elif self.sc[S.F_TRIAL] - f0 <= 1e-4 * self.sc[S.DEC] + self.roundoff[None] * ti.abs(f0):
             self.ctl[S.ACCEPTED] = 1
             self.ctl[S.LS_DONE] = 1
         elif self.ctl[S.LS_COUNT] >= self.ctl[S.LS_LIMIT]:
@@ -161,7 +159,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         else:
             self.sc[S.ALPHA] *= 0.5
             self.ctl[S.LS_COUNT] += 1
-            if self.ctl[S.PHASE] == 1:
+            if self.ctl[S.PHASE] == 2:
                 self.ctl[S.BACKTRACKS] += 1
 
     @ti.func
@@ -175,15 +173,21 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = self.trial_active[i]
                     self.normal[i] = self.trial_normal[i]
+        phase = self.ctl[S.PHASE]
         if ok:
             self.sc[S.F_CUR] = self.sc[S.F_TRIAL]
             self.sc[S.E_CUR] = self.sc[S.E_TRIAL]
             self.sc[S.STEP] = self.sc[S.STEP_TRIAL]
-        elif self.ctl[S.PHASE] == 1:
+        elif phase == 2:
             self.ctl[S.DONE] = 1
-        if self.ctl[S.PHASE] == 0:
-            self.ctl[S.PHASE] = 1
+        if phase == 0:
+            # The reference: g, spring and total energy at x_n; next, the feasible start.
+            self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.G_START] + self.sc[S.E_TRIAL]
+            self.sc[S.H_SCALE] = self.sc[S.K_START] + ti.abs(self.sc[S.G_START]) + self.sc[S.E_TRIAL]
+            self._line_search_begin(self.sc[S.T_MAX], S.START_HALVINGS)
+        elif phase == 1:
             self.ctl[S.UPDATE] = 1  # the first gradient freezes the friction multipliers
+        self.ctl[S.PHASE] = ti.min(phase + 1, 2)
 
     @ti.func
     def _after_gradient(self, dt):
@@ -245,24 +249,25 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.acc[S.A_BOUNCE] += ti.cast(self.ctl[S.BOUNCE_LIMITED], ti.f64)
 
     # -- the serial driver (inside the kernel that runs many steps) ------------------------------
+    # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so
+    # one loop runs all three phases and every phase function has a single call site (the serial
+    # kernel inlines each call site; fewer sites compile faster).
     @ti.func
     def _solve(self, x: ti.template(), dt):
-        for _ in range(S.START_HALVINGS + 1):
-            self._trial(x, dt)
-            self._line_search_decide()
-            if self.ctl[S.LS_DONE]:
-                break
-        self._accept(x)
-        for _k in range(self.max_iters[None] + self.max_updates[None] + 1):
-            self._gradient(x, dt)
-            self._after_gradient(dt)
-            if self.ctl[S.DONE]:
-                break
-            if self._iterating():
-                self._hessian(x, dt)
-                self._direction()
-                self._after_direction()
-                for _h in range(self.ls_iters[None] + 1):
+        for _k in range(self.max_iters[None] + self.max_updates[None] + 3):
+            searching = self.ctl[S.PHASE] < 2
+            if not searching:
+                self._gradient(x, dt)
+                self._after_gradient(dt)
+                if self.ctl[S.DONE]:
+                    break
+                searching = self._iterating()
+                if searching:
+                    self._hessian(x, dt)
+                    self._direction()
+                    self._after_direction()
+            if searching:
+                for _h in range(self.ctl[S.LS_LIMIT] + 1):
                     self._trial(x, dt)
                     self._line_search_decide()
                     if self.ctl[S.LS_DONE]:
@@ -279,20 +284,19 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
 
     # -- the parallel driver (Python sequences the same phases, one launch each) -----------------
     def _solve_python(self, x, dt):
-        for _ in range(S.START_HALVINGS + 1):
-            self._k_trial_decide(x, dt)
-            if self.ctl[S.LS_DONE]:
-                break
-        self._k_accept(x)
-        for _ in range(int(self.max_iters[None]) + int(self.max_updates[None]) + 1):
-            self._k_gradient_decide(x, dt)
-            if self.ctl[S.DONE]:
-                break
-            if not self.ctl[S.UPDATE]:
-                self._k_hessian(x, dt)
-                self._direction_python()
-                self._k_after_direction()
-                for _ in range(int(self.ls_iters[None]) + 1):
+        for _ in range(int(self.max_iters[None]) + int(self.max_updates[None]) + 3):
+            searching = self.ctl[S.PHASE] < 2
+            if not searching:
+                self._k_gradient_decide(x, dt)
+                if self.ctl[S.DONE]:
+                    break
+                searching = not self.ctl[S.UPDATE]
+                if searching:
+                    self._k_hessian(x, dt)
+                    self._direction_python()
+                    self._k_after_direction()
+            if searching:
+                for _ in range(int(self.ctl[S.LS_LIMIT]) + 1):
                     self._k_trial_decide(x, dt)
                     if self.ctl[S.LS_DONE]:
                         break

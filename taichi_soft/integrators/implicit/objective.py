@@ -137,7 +137,7 @@ class Objective:
         for i in range(self.n):
             xi = x[i] + alpha * self.dx[i]
             if ti.static(self.terrain.has_contact):
-                xi = self._project(i, xi)
+                xi = self._project(i, xi, alpha > 0)  # alpha = 0: the current point exactly
             else:
                 self.x_trial[i] = xi
             if self._free(i):

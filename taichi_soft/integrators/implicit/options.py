@@ -53,7 +53,7 @@ SHARED = {
 
 NEWTON = {
     **SHARED,
-    "newton_iters": Option(10, _int_at_least(1), "an integer >= 1", "most Newton iterations per step"),
+    "newton_iters": Option(20, _int_at_least(1), "an integer >= 1", "most Newton iterations per step"),
     "newton_tol": Option(0.1, _number_in(0.0, 1e3), "a number in [0, 1000]",
                          "residual [m/s^2] at which Newton stops (0: only the other tests stop it)"),
     "forcing": Option("eisenstat_walker", lambda v: v in ("eisenstat_walker", "fixed"), "eisenstat_walker or fixed",
@@ -66,7 +66,7 @@ NEWTON = {
 LOCAL_GLOBAL = {
     **SHARED,
     "iterations": Option(10, _int_at_least(1), "an integer >= 1", "most local/global iterations per step"),
-    "tol": Option(0.0, _number_in(0.0, 1e3), "a number in [0, 1000]",
+    "tol": Option(0.1, _number_in(0.0, 1e3), "a number in [0, 1000]",
                   "residual [m/s^2] at which iterations stop early (0: only the other tests stop them)"),
     "global_solver": Option("auto", lambda v: v in ("auto", "cholesky", "pcg"), "auto, cholesky or pcg",
                             "cholesky: prefactored skyline Cholesky (as PCG preconditioner under contact); "
