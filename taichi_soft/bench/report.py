@@ -99,10 +99,10 @@ def run_stability(quick: bool, progress=None) -> dict:
     names = list(REGISTRY)
     sets = ["body.0.n=4", "body.0.size=2.0", "body.0.center=[0, 3, 0]"] if quick else []
     horizon = 1.0 if quick else 2.0
-    scales = (1.0, 10.0) if quick else (1.0, 3.0, 10.0, 30.0, 100.0)
+    scales = stability.QUICK_STIFFNESS_SCALES if quick else stability.STIFFNESS_SCALES
     terrains = ("plane",) if quick else TERRAINS
     rel_tol = 0.1 if quick else 0.03
-    hi = 0.1
+    hi = stability.DT_MAX
 
     def terrain_job(job):
         name, terrain = job
