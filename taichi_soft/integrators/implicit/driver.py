@@ -8,7 +8,7 @@ A step (docs/implicit.md):
    along the start direction, beginning at the largest
    feasible fraction T_MAX, accepting the first fraction with g <= g(x_n) (at most
    ``START_HALVINGS`` halvings, else the step starts at x_n).
-3. Iterations: gradient -> decision (converged? refreeze friction?) -> direction (the subclass:
+3. Iterations: gradient (and the linear operator's data) -> decision (converged? refreeze friction?) -> direction (the subclass:
    Newton + PCG, or the prefactored local/global matrix) -> Armijo backtracking -> accept.
 4. ``_end_step``: v = (x - x_n)/h, restitution within the energy the step lost, ``_finish``
    (``Terrain.respond``, divergence check), and, as a counted last resort, the energy clamp.
@@ -31,8 +31,8 @@ from .objective import Objective
 class ImplicitIntegrator(Objective, ContactSet, Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
-    Subclasses provide ``_hessian(x, dt)`` (ti.func: whatever ``apply`` needs at the current
-    iterate), ``_direction()`` (ti.func, serial: dx from rhs, counting CG iterations in
+    Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
+    (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``_direction()`` (ti.func, serial: dx from rhs, counting CG iterations in
     ``ctl[CG]``), ``_direction_python()`` (the same from Python scope), ``_tol()`` and
     ``_max_iterations()`` (the residual tolerance [m/s^2] and iteration cap from their options).
     """
@@ -263,7 +263,6 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                     break
                 searching = self._iterating()
                 if searching:
-                    self._hessian(x, dt)
                     self._direction()
                     self._after_direction()
             if searching:
@@ -292,7 +291,6 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                     break
                 searching = not self.ctl[S.UPDATE]
                 if searching:
-                    self._k_hessian(x, dt)
                     self._direction_python()
                     self._k_after_direction()
             if searching:
@@ -321,10 +319,6 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     def _k_gradient_decide(self, x: ti.template(), dt: float):
         self._gradient(x, dt)
         self._after_gradient(dt)
-
-    @ti.kernel
-    def _k_hessian(self, x: ti.template(), dt: float):
-        self._hessian(x, dt)
 
     @ti.kernel
     def _k_after_direction(self):
@@ -441,7 +435,6 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     def hessian_product(self, state, dt: float, w: np.ndarray) -> np.ndarray:
         """H w [kg m], H the (PSD-clamped) Hessian the solver uses at state.x; w an [n, 3] array."""
         self._k_gradient_decide(state.x, dt)
-        self._k_hessian(state.x, dt)
         src = ti.Vector.field(3, float, self.n)
         dst = ti.Vector.field(3, float, self.n)
         src.from_numpy(np.asarray(w, dtype=self.model.real))

@@ -103,8 +103,12 @@ class FastMassSpring(ImplicitIntegrator):
     # iterations (the constraints perturb A by a low-rank change); with nothing held the plain
     # triangular solve is exact.
     @ti.func
-    def _hessian(self, x: ti.template(), dt):
+    def _store_spring_hessian(self, s, hs):
         pass  # A is constant; the friction blocks come from the gradient
+
+    @ti.func
+    def _store_preconditioner(self, i):
+        pass
 
     @ti.func
     def _filter(self, i, q):

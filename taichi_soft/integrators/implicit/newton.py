@@ -39,34 +39,31 @@ class ImplicitEuler(ImplicitIntegrator):
         return self.options["newton_iters"]
 
     @ti.func
-    def _hessian(self, x: ti.template(), dt):
-        """Spring Hessian blocks and the block-Jacobi preconditioner at the current iterate (the
-        friction blocks come from the gradient)."""
+    def _store_spring_hessian(self, s, hs):
+        self.spring_hess[s] = hs
+
+    @ti.func
+    def _store_preconditioner(self, i):
+        """Inverse of particle i's diagonal block (mass, springs, friction), filtered if held."""
         m = self.model
-        for s in range(m.n_springs):
-            _g, hs = self._spring_terms(x, s, dt)
-            self.spring_hess[s] = hs
-        for i in range(self.n):
-            diag = m.mass[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
-            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
-                s = m.adj_spring[e]
-                diag += self.spring_hess[s if s >= 0 else -s - 1]
-            pinv = ti.Matrix.zero(float, 3, 3)
-            if self._free(i):
-                if ti.static(self.terrain.has_contact):
-                    if self.active[i]:
-                        # S D S + N N^T: the constrained block, kept invertible; its inverse maps the
-                        # tangent plane to itself, so PCG stays in that subspace.
-                        nrm = self.normal[i]
-                        sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-                        diag = sp @ diag @ sp + nrm.outer_product(nrm)
+        diag = m.mass[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+        for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+            s = m.adj_spring[e]
+            diag += self.spring_hess[s if s >= 0 else -s - 1]
+        pinv = ti.Matrix.zero(float, 3, 3)
+        if self._free(i):
+            if ti.static(self.terrain.has_contact):
+                if self.active[i]:
+                    # S D S + N N^T: the constrained block, kept invertible; its inverse maps the
+                    # tangent plane to itself, so PCG stays in that subspace.
+                    nrm = self.normal[i]
+                    sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+                    pinv = sp @ (sp @ diag @ sp + nrm.outer_product(nrm)).inverse() @ sp
+                else:
+                    pinv = diag.inverse()
+            else:
                 pinv = diag.inverse()
-                if ti.static(self.terrain.has_contact):
-                    if self.active[i]:
-                        nrm = self.normal[i]
-                        sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-                        pinv = sp @ pinv @ sp
-            self.precond[i] = pinv
+        self.precond[i] = pinv
 
     # PCG operator: the filtered Hessian H = M + h^2 K_psd + h D + friction, applied per particle by
     # gathering its springs' blocks (no atomics, no assembled matrix).
