@@ -321,6 +321,10 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self._after_gradient(dt)
 
     @ti.kernel
+    def _k_add_cg(self, iters: ti.i32):
+        self.ctl[S.CG] += iters
+
+    @ti.kernel
     def _k_after_direction(self):
         self._after_direction()
 

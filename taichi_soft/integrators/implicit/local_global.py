@@ -157,10 +157,6 @@ class FastMassSpring(ImplicitIntegrator):
         else:
             self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
 
-    @ti.kernel
-    def _k_add_cg(self, iters: ti.i32):
-        self.ctl[S.CG] += iters
-
     @ti.func
     def _set_cg_tol(self, tol):
         self.pcg.rel_tol[None] = self.cg_tol[None]  # the outer iteration corrects the rest

@@ -95,10 +95,6 @@ class ImplicitEuler(ImplicitIntegrator):
     def _direction_python(self):
         self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
 
-    @ti.kernel
-    def _k_add_cg(self, iters: ti.i32):
-        self.ctl[S.CG] += iters
-
     def stats(self) -> dict:
         """Averages per step since the last call (or reset): Newton and CG iterations, line-search
         halvings, friction refreezes, the final residual [m/s^2] (see ``_residual``); counts of steps
