@@ -390,7 +390,8 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             self._k_begin(state.x, state.v, dt)
             self._solve_python(state.x, dt)
             self._k_end(state.x, state.v, dt, start + k)
-            self._k_body_contacts(state.x, state.v, dt)  # every step ends with body contacts
+            if self._has_contacts():
+                self._k_body_contacts(state.x, state.v, dt)  # every step ends with body contacts
             if self.diverged:
                 break
         self._step_counter += n_steps
