@@ -393,14 +393,14 @@ def test_mass_change_mid_run_keeps_residual_and_tolerance(name):
 
 @pytest.mark.parametrize("name", IMPLICIT)
 def test_free_flight_costs_no_iterations(name):
-    """The scene's drop before it lands (1 s at dt = 1/30 s; the cube's bottom stays above 2 m): the
+    """The scene's drop before it lands (1 s at dt = 1/30 s, still 1.8 m above the ground): the
     predictor solves a rigidly falling cube's step exactly, so the solver stops at its first test."""
     sim = _sim("plane", name)
     sim.set_dt(1.0 / 30.0)
     sim.reset()
     sim.integrator.stats()
     sim.advance(30)
-    assert sim.measure()["min_terrain_distance"] > 2.0
+    assert sim.measure()["min_terrain_distance"] > 0.5  # not landed yet
     s = sim.integrator.stats()
     key = "newton_iterations_per_step" if name == "implicit_euler" else "local_global_iterations_per_step"
     assert s["steps"] == 30 and s[key] == 0 and s["cg_iterations_per_step"] == 0

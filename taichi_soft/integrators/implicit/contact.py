@@ -12,7 +12,7 @@ per-particle ti.func called from the phases of the step (docs/implicit.md, "Cont
 * **Active set with hysteresis** (``_contact_gradient``): a held particle's normal is filtered
   out of the solve (Baraff & Witkin 1998, Sec. 5.3). It is released only when its multiplier is
   clearly negative, below -m h^2 max(tol, current residual) (an inexact iterate's force error is
-  as large as the residual), and at most once per step.
+  as large as the residual), a margin that grows with each release in the step.
 * **Frozen friction**: each held particle's multiplier lam = h^2 |F_n| is frozen at the step's
   first gradient and refrozen only by a bounded number of outer updates (``friction_updates``),
   each of which corrects the current objective value, so one objective is minimised between them.
@@ -40,7 +40,7 @@ class ContactSet:
         self.trial_normal = ti.Vector.field(3, float, n)
         self.active = ti.field(ti.i32, n)  # 1 = held on the terrain surface
         self.trial_active = ti.field(ti.i32, n)
-        self.released = ti.field(ti.i32, n)  # 1 = released once in this step (no second release)
+        self.released = ti.field(ti.i32, n)  # releases in this step (each widens the release margin)
         self.lam = ti.field(float, n)  # frozen multiplier h^2 |F_n| of a held particle [kg m]
         self.release_tol = ti.field(float, ())  # release margin floor [m/s^2] (the solver's tolerance)
 
@@ -81,10 +81,14 @@ class ContactSet:
         lam_new = lam_old
         if self.active[i]:
             c = gi.dot(nrm)  # candidate multiplier: h^2 times the normal force the surface must supply
-            margin = m.mass[i] * dt * dt * ti.max(self.release_tol[None], self.sc[S.RES_PREV])
-            if c < -margin and self.released[i] == 0:
+            # The margin grows with each release in this step (hysteresis against chatter); a
+            # pulling particle is never kept held, or its neighbours' multipliers, and with them
+            # friction, would carry more than the body's real load.
+            margin = m.mass[i] * dt * dt * ti.max(self.release_tol[None], self.sc[S.RES_PREV]) \
+                * (1.0 + 3.0 * self.released[i])
+            if c < -margin:
                 self.active[i] = 0
-                self.released[i] = 1
+                self.released[i] += 1
                 lam_new = 0.0
             else:
                 cand = ti.max(c, 0.0)
