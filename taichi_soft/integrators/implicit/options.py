@@ -43,7 +43,7 @@ SHARED = {
                            "stop iterating once an update moves no particle faster than this [m/s] (0: off)"),
     "line_search_iters": Option(12, _int_at_least(0), "an integer >= 0",
                                 "most step halvings per iteration (backtracking on the step's objective)"),
-    "friction_updates": Option(2, _int_at_least(0), "an integer >= 0",
+    "friction_updates": Option(4, _int_at_least(0), "an integer >= 0",
                                "most outer updates of the frozen friction multipliers per step"),
     "cg_iters": Option(200, _int_at_least(1), "an integer >= 1", "most CG iterations per linear solve"),
     "energy_clamp": Option(True, _bool, "true or false",
@@ -65,7 +65,7 @@ NEWTON = {
 
 LOCAL_GLOBAL = {
     **SHARED,
-    "iterations": Option(10, _int_at_least(1), "an integer >= 1", "most local/global iterations per step"),
+    "iterations": Option(20, _int_at_least(1), "an integer >= 1", "most local/global iterations per step"),
     "tol": Option(0.1, _number_in(0.0, 1e3), "a number in [0, 1000]",
                   "residual [m/s^2] at which iterations stop early (0: only the other tests stop them)"),
     "global_solver": Option("auto", lambda v: v in ("auto", "cholesky", "pcg"), "auto, cholesky or pcg",
