@@ -143,8 +143,8 @@ def run_stability(quick: bool, executor=None, names=None) -> dict:
 
     names = list(names or REGISTRY)
     cfg = {"sets": ["body.0.n=4", "body.0.size=2.0", "body.0.center=[0, 3, 0]"] if quick else [],
-           "horizon": 1.0 if quick else 2.0, "rel_tol": 0.1 if quick else 0.03, "hi": 0.1}
-    scales = (1.0, 10.0) if quick else (1.0, 3.0, 10.0, 30.0, 100.0)
+           "horizon": 1.0 if quick else 2.0, "rel_tol": 0.1 if quick else 0.03, "hi": stability.DT_MAX}
+    scales = stability.QUICK_STIFFNESS_SCALES if quick else stability.STIFFNESS_SCALES
     terrains = ("plane",) if quick else TERRAINS
     tasks = [Task(f"terrain/{n}/{t}", "taichi_soft.bench.report:stability_terrain_task", dict(cfg, name=n, terrain=t))
              for n in names for t in terrains]

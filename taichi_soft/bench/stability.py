@@ -20,6 +20,33 @@ from ..simulation import Simulation
 
 SEED_TABLE = {"explicit_euler": 0.0020, "midpoint": 0.0045, "rk4": 0.0030}  # the seed's plane results [s]
 
+# The stiffness sweep (multiples of the scene's spring stiffness) and the largest step tried [s]:
+# from x1, where explicit methods are cheapest, to x1000, where they must crawl (issue 11).
+STIFFNESS_SCALES = (1.0, 10.0, 100.0, 1000.0)
+QUICK_STIFFNESS_SCALES = (1.0, 10.0)
+DT_MAX = 0.1
+
+
+def implicit_wins_from(rows: list[dict]) -> float | None:
+    """Smallest stiffness scale from which the best implicit method's wall time per simulated second
+    (at its own largest stable dt) beats the best explicit one's, and keeps beating it at every larger
+    scale; None if it never does. ``rows``: the stiffness sweep's rows (integrator, stiffness_scale,
+    wall_s_per_sim_s)."""
+    from ..integrators import REGISTRY
+
+    best = {}
+    for r in rows:
+        if r.get("wall_s_per_sim_s") is None:
+            continue
+        key = (r["stiffness_scale"], bool(REGISTRY[r["integrator"]].implicit))
+        best[key] = min(best.get(key, math.inf), r["wall_s_per_sim_s"])
+    scales = sorted({s for s, _ in best})
+    wins = [s for s in scales if best.get((s, True), math.inf) < best.get((s, False), math.inf)]
+    for s in wins:
+        if all(t in wins for t in scales if t >= s):
+            return s
+    return None
+
 
 def largest_stable_dt(is_stable, lo: float, hi: float, rel_tol: float = 0.02, max_iter: int = 30) -> dict:
     """Bisection on log(dt) between ``lo`` (should be stable) and ``hi`` (should be unstable).

@@ -1,0 +1,164 @@
+"""Terrain contact inside the implicit step: feasible start, active set, multipliers, restitution.
+
+The terrain is an inequality constraint d(x_i) >= 0 (``Terrain.query``). The pieces, each a
+per-particle ti.func called from the phases of the step (docs/implicit.md, "Contact"):
+
+* **Feasible start** (``_start_direction``): the step starts on the segment x_n -> predictor, at
+  the largest fraction t of it that keeps every particle outside the terrain (the driver then
+  halves t until g(x_0) <= g(x_n)). Particles already on the surface whose predictor points
+  inward are held from the start and move only along the surface. The predictor is never
+  projected: that flattened several layers of the cube at large steps and started the solve far
+  above the energy the step began with (../shared/design/implicit-contact.md).
+* **Active set with hysteresis** (``_contact_gradient``): a held particle's normal is filtered
+  out of the solve (Baraff & Witkin 1998, Sec. 5.3). It is released only when its multiplier is
+  clearly negative, below -m h^2 max(tol, current residual) (an inexact iterate's force error is
+  as large as the residual), a margin that grows with each release in the step.
+* **Frozen friction**: each held particle's multiplier lam = h^2 |F_n| is frozen at the step's
+  first gradient and refrozen only by a bounded number of outer updates (``friction_updates``),
+  each of which corrects the current objective value, so one objective is minimised between them.
+* **Projection** (``_project``): trial points put held particles back onto the surface (its
+  normal may turn along a curved terrain) and project and hold others that end inside.
+* **Restitution** (``_bounce``): a held particle that approached faster than the terrain's
+  ``bounce_threshold`` leaves with restitution times its approach speed (and, with
+  ``impact_friction``, the tangential loss mu |dv_N| of that bounce impulse); slower ones do
+  not bounce, as in ``Terrain.impact``. The driver scales all bounces of a step down to the energy
+  the step lost, so restitution never adds energy the step did not have.
+"""
+
+import taichi as ti
+
+from . import slots as S
+
+
+@ti.data_oriented
+class ContactSet:
+    """Mixin of ``ImplicitIntegrator``: contact fields and per-particle ti.funcs."""
+
+    def _init_contact(self):
+        n = self.n
+        self.normal = ti.Vector.field(3, float, n)  # terrain normal of a held particle
+        self.trial_normal = ti.Vector.field(3, float, n)
+        self.active = ti.field(ti.i32, n)  # 1 = held on the terrain surface
+        self.trial_active = ti.field(ti.i32, n)
+        self.released = ti.field(ti.i32, n)  # releases in this step (each widens the release margin)
+        self.lam = ti.field(float, n)  # frozen multiplier h^2 |F_n| of a held particle [kg m]
+        self.release_tol = ti.field(float, ())  # release margin floor [m/s^2] (the solver's tolerance)
+
+    @ti.func
+    def _start_direction(self, i, xi, d):
+        """Direction of particle i's start move (predicted move ``d`` = y - x_n, [m]); holds it if it
+        sits on the surface and the predictor points inward; lowers T_MAX to its crossing fraction."""
+        self.active[i] = 0
+        self.released[i] = 0
+        self.lam[i] = 0.0
+        self.normal[i] = ti.Vector([0.0, 1.0, 0.0], dt=float)
+        dist, nrm = self.terrain.query(i, xi)
+        dn = nrm.dot(d)
+        if dn < 0:
+            if dist <= -0.01 * dn:
+                # On the surface (within 1 % of its predicted approach): held from the start, moves
+                # along the surface only.
+                self.active[i] = 1
+                self.normal[i] = nrm
+                d -= dn * nrm
+            else:
+                dist_y, _n = self.terrain.query(i, xi + d)
+                if dist_y < 0:
+                    ti.atomic_min(self.sc[S.T_MAX], dist / (dist - dist_y))
+        return d
+
+    @ti.func
+    def _contact_gradient(self, i, xi, gi, dt):
+        """Active set and friction for particle i at xi with (frictionless) gradient gi [kg m].
+
+        Releases a clearly pulling held particle (once per step), refreezes its multiplier when the
+        driver asked for it (``ctl[UPDATE]``), corrects the objective for any change of the friction
+        weight (the term is linear in lam), and returns gi plus the friction gradient.
+        """
+        m = self.model
+        nrm = self.normal[i]
+        lam_old = self.lam[i]
+        lam_new = lam_old
+        if self.active[i]:
+            c = gi.dot(nrm)  # candidate multiplier: h^2 times the normal force the surface must supply
+            # The margin grows with each release in this step (hysteresis against chatter); a
+            # pulling particle is never kept held, or its neighbours' multipliers, and with them
+            # friction, would carry more than the body's real load.
+            margin = m.mass[i] * dt * dt * ti.max(self.release_tol[None], self.sc[S.RES_PREV]) \
+                * (1.0 + 3.0 * self.released[i])
+            if c < -margin:
+                self.active[i] = 0
+                self.released[i] += 1
+                lam_new = 0.0
+            else:
+                cand = ti.max(c, 0.0)
+                self.sc[S.LAM_CHANGE] += ti.abs(cand - lam_old)
+                self.sc[S.LAM_SUM] += cand
+                if self.ctl[S.UPDATE]:
+                    lam_new = cand
+        else:
+            lam_new = 0.0
+        fh = ti.Matrix.zero(float, 3, 3)
+        if lam_new != lam_old or lam_new > 0:
+            f0, fg, fh1 = self._friction(i, xi, nrm, 1.0)
+            self.sc[S.F_CUR] += (lam_new - lam_old) * f0
+            gi += lam_new * fg
+            fh = lam_new * fh1
+        self.lam[i] = lam_new
+        self.fric_hess[i] = fh
+        return gi
+
+    @ti.func
+    def _project(self, i, xi, moved):
+        """Make trial position xi of particle i feasible (if ``moved``); writes x_trial, trial_active,
+        trial_normal."""
+        hit = self.active[i]
+        nrm = self.normal[i]
+        if self._free(i) and moved:
+            dist, nq = self.terrain.query(i, xi)
+            if hit or dist < 0:
+                xi -= dist * nq
+                hit = 1
+                nrm = nq
+        self.x_trial[i] = xi
+        self.trial_active[i] = hit
+        self.trial_normal[i] = nrm
+        return xi
+
+    @ti.func
+    def _bounce(self, i, vi):
+        """Velocity change [m/s] restitution asks for a held particle with solved velocity vi."""
+        t = self.terrain
+        delta = ti.Vector.zero(float, 3)
+        if self.active[i] and self._free(i):
+            nrm = self.normal[i]
+            approach = nrm.dot(self.v_prev[i])
+            if -approach > t.bounce_threshold[None]:
+                vn = nrm.dot(vi)
+                target = -t.restitution[None] * approach
+                if target > vn:
+                    dvn = target - vn
+                    vt = vi - vn * nrm
+                    vt_new = vt
+                    if t.impact_friction[None]:
+                        # The absorbing part of the impact impulse met friction inside the solve;
+                        # the bounce impulse m dvn meets it here (Coulomb, never reversing).
+                        sl = vt.norm()
+                        if sl > 0:
+                            vt_new = vt * ti.max(0.0, 1.0 - t.friction[None] * dvn / sl)
+                    delta = (vt_new - vt) + dvn * nrm
+        return delta
+
+    @ti.func
+    def _bounce_scale(self, budget):
+        """Largest s in [0, 1] with sum 1/2 m |v + s dv|^2 - 1/2 m |v|^2 = A s^2 + B s <= budget [J]."""
+        a = self.sc[S.BOUNCE_A]
+        b = self.sc[S.BOUNCE_B]
+        s = ti.cast(1.0, float)
+        if a > 0 and a + b > budget:
+            disc = b * b + 4.0 * a * budget
+            s = 0.0
+            if disc >= 0:
+                s = ti.min(1.0, ti.max(0.0, (-b + ti.sqrt(disc)) / (2.0 * a)))
+            self.ctl[S.BOUNCE_LIMITED] = 1
+        return s

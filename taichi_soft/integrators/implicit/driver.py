@@ -1,0 +1,476 @@
+"""One driver for both implicit solvers: start, iterate, end the step; serial and parallel alike.
+
+A step (docs/implicit.md):
+
+1. ``_begin_step``: save (x_n, v_n), freeze damper directions, predict y, choose the start
+   direction (contact.py) and measure the energy the step begins with.
+2. Reference and feasible start: g(x_n) (a trial at alpha = 0), then a line search from x_n
+   along the start direction, beginning at the largest
+   feasible fraction T_MAX, accepting the first fraction with g <= g(x_n) (at most
+   ``START_HALVINGS`` halvings, else the step starts at x_n).
+3. Iterations: gradient (and the linear operator's data) -> decision (converged? refreeze friction?) -> direction (the subclass:
+   Newton + PCG, or the prefactored local/global matrix) -> Armijo backtracking -> accept.
+4. ``_end_step``: v = (x - x_n)/h, restitution within the energy the step lost, ``_finish``
+   (``Terrain.respond``, divergence check), and, as a counted last resort, the energy clamp.
+
+Every decision (convergence tests, Armijo, the forcing term, recording) is a ti.func writing
+``ctl``/``sc``; the serial driver (``_solve``, inside the one-launch kernel of many steps) and the
+parallel driver (``_solve_python``, one launch per phase) only sequence them.
+"""
+
+import numpy as np
+import taichi as ti
+
+from ..base import Integrator
+from . import slots as S
+from .contact import ContactSet
+from .objective import Objective
+
+
+@ti.data_oriented
+class ImplicitIntegrator(Objective, ContactSet, Integrator):
+    """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
+
+    Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
+    (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``_direction()`` (ti.func, serial: dx from rhs, counting CG iterations in
+    ``ctl[CG]``), ``_direction_python()`` (the same from Python scope), ``_tol()`` and
+    ``_max_iterations()`` (the residual tolerance [m/s^2] and iteration cap from their options).
+    """
+
+    implicit = True
+    order = 1
+    force_evals = 0
+
+    def __init__(self, model, terrain, options=None):
+        super().__init__(model, terrain, options)
+        self._init_objective(model)
+        self._init_contact()
+        n = self.n
+        o = self.options
+        self.v_new = ti.Vector.field(3, float, n)  # velocity from the solve [m/s]
+        self.dv = ti.Vector.field(3, float, n)  # restitution's velocity change [m/s]
+        self.sc = ti.field(float, S.N_SC)
+        self.ctl = ti.field(ti.i32, S.N_CTL)
+        self.acc = ti.field(ti.f64, S.N_ACC)
+        self.res_history = ti.field(float, S.RES_HISTORY)  # residual [m/s^2] per gradient of the last step
+        self.n_history = ti.field(ti.i32, ())
+        # Limits read by kernels (fields, so changing an option's value needs no recompile).
+        self.max_iters = ti.field(ti.i32, ())
+        self.ls_iters = ti.field(ti.i32, ())
+        self.max_updates = ti.field(ti.i32, ())
+        self.cg_iters = ti.field(ti.i32, ())
+        self.cg_tol = ti.field(float, ())
+        self.ew_forcing = ti.field(ti.i32, ())  # 1: Eisenstat-Walker forcing term
+        self.velocity_tol = ti.field(float, ())  # [m/s]
+        self.clamp_on = ti.field(ti.i32, ())
+        self.tol2 = ti.field(float, ())  # tolerance on RES2, from the option in m/s^2 (see advance)
+        self.roundoff = ti.field(float, ())  # relative objective noise the line search ignores
+        self.roundoff[None] = 16 * np.finfo(model.real).eps
+        self.energy_tol = ti.field(float, ())  # relative energy growth counted as round-off
+        self.energy_tol[None] = 1e3 * np.finfo(model.real).eps
+        self.friction_velocity[None] = o["friction_velocity"]
+        self.max_iters[None] = self._max_iterations()
+        self.ls_iters[None] = o["line_search_iters"]
+        self.max_updates[None] = o["friction_updates"]
+        self.cg_iters[None] = o["cg_iters"]
+        self.cg_tol[None] = o["cg_tol"]
+        self.ew_forcing[None] = int(o.get("forcing") == "eisenstat_walker")
+        self.velocity_tol[None] = o["velocity_tol"]
+        # The energy account assumes no pinned particle does work on the body.
+        self.clamp_on[None] = int(o["energy_clamp"] and not np.any(model.mass_np <= 0))
+        self.release_tol[None] = max(self._tol(), 0.1)
+        self._mass_version = None
+
+    def _tol(self) -> float:
+        raise NotImplementedError
+
+    def _max_iterations(self) -> int:
+        raise NotImplementedError
+
+    def _prepare(self, dt: float):
+        """Hook run before each ``advance`` with its dt [s] (fast mass-spring refactorises here)."""
+
+    # -- phase 1: begin ---------------------------------------------------------------------------
+    @ti.func
+    def _begin_step(self, x: ti.template(), v: ti.template(), dt):
+        m = self.model
+        self.h2[None] = dt * dt
+        self.fric_eps[None] = self.friction_velocity[None] * dt
+        for s in range(m.n_springs):
+            d = x[m.spring_ends[s][0]] - x[m.spring_ends[s][1]]
+            length = d.norm()
+            self.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
+        self.sc[S.T_MAX] = 1.0
+        self.sc[S.K_START] = 0.0
+        self.sc[S.G_START] = 0.0
+        for i in range(self.n):
+            xi = x[i]
+            self.x_prev[i] = xi
+            self.v_prev[i] = v[i]
+            self.grad[i] = ti.Vector.zero(float, 3)
+            self.fric_hess[i] = ti.Matrix.zero(float, 3, 3)
+            d = dt * v[i]
+            if self._free(i):
+                d += dt * dt * m.gravity[None]
+                mi = m.mass[i]
+                self.sc[S.K_START] += 0.5 * mi * v[i].dot(v[i])
+                self.sc[S.G_START] -= mi * m.gravity[None].dot(xi)
+                self.y[i] = xi + d
+                if ti.static(self.terrain.has_contact):
+                    d = self._start_direction(i, xi, d)
+                self.dx[i] = d
+            else:
+                self.y[i] = xi + d
+                x[i] = xi + d  # pinned: moves with its own velocity, never solved for
+                self.dx[i] = ti.Vector.zero(float, 3)
+                if ti.static(self.terrain.has_contact):
+                    self.active[i] = 0
+                    self.lam[i] = 0.0
+        for k in ti.static(range(S.N_CTL)):
+            self.ctl[k] = 0
+        self.sc[S.RES_PREV] = 1e30  # no release before a residual is known
+        self.sc[S.STEP] = 1e30
+        self.n_history[None] = 0
+        # Phase 0 evaluates the reference g(x_n) and E(x_n): one trial at alpha = 0.
+        self._line_search_begin(0.0, 0)
+
+    # -- decisions ----------------------------------------------------------------------------------
+    @ti.func
+    def _line_search_begin(self, alpha, limit):
+        self.sc[S.ALPHA] = alpha
+        self.ctl[S.LS_COUNT] = 0
+        self.ctl[S.LS_LIMIT] = limit
+        self.ctl[S.LS_DONE] = 0
+        self.ctl[S.ACCEPTED] = 0
+
+    @ti.func
+    def _line_search_decide(self):
+        """Armijo (c = 1e-4, the objective's round-off tolerated) on the trial just evaluated; at the
+        start grad = 0, so the test is g(x_0) <= g(x_n)."""
+        f0 = self.sc[S.F_CUR]
+        if self.ctl[S.PHASE] == 0:  # the reference point x_n itself
+            self.ctl[S.ACCEPTED] = 1
+            self.ctl[S.LS_DONE] = 1
+        elif self.sc[S.F_TRIAL] - f0 <= 1e-4 * self.sc[S.DEC] + self.roundoff[None] * ti.abs(f0):
+            self.ctl[S.ACCEPTED] = 1
+            self.ctl[S.LS_DONE] = 1
+        elif self.ctl[S.LS_COUNT] >= self.ctl[S.LS_LIMIT]:
+            self.ctl[S.LS_DONE] = 1
+        else:
+            self.sc[S.ALPHA] *= 0.5
+            self.ctl[S.LS_COUNT] += 1
+            if self.ctl[S.PHASE] == 2:
+                self.ctl[S.BACKTRACKS] += 1
+
+    @ti.func
+    def _accept(self, x: ti.template()):
+        """Move to the accepted trial; an iteration whose line search failed ends the step (x and its
+        gradient stay valid). A rejected start leaves the step at x_n."""
+        ok = self.ctl[S.ACCEPTED]
+        for i in range(self.n):
+            if ok:
+                x[i] = self.x_trial[i]
+                if ti.static(self.terrain.has_contact):
+                    self.active[i] = self.trial_active[i]
+                    self.normal[i] = self.trial_normal[i]
+        phase = self.ctl[S.PHASE]
+        if ok:
+            self.sc[S.F_CUR] = self.sc[S.F_TRIAL]
+            self.sc[S.E_CUR] = self.sc[S.E_TRIAL]
+            self.sc[S.STEP] = self.sc[S.STEP_TRIAL]
+        elif phase == 2:
+            self.ctl[S.DONE] = 1
+        if phase == 0:
+            # The reference: g, spring and total energy at x_n; next, the feasible start.
+            self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.G_START] + self.sc[S.E_TRIAL]
+            self.sc[S.H_SCALE] = self.sc[S.K_START] + ti.abs(self.sc[S.G_START]) + self.sc[S.E_TRIAL]
+            self._line_search_begin(self.sc[S.T_MAX], S.START_HALVINGS)
+        elif phase == 1:
+            self.ctl[S.UPDATE] = 1  # the first gradient freezes the friction multipliers
+        self.ctl[S.PHASE] = ti.min(phase + 1, 2)
+
+    @ti.func
+    def _after_gradient(self, dt):
+        """Record the residual; decide: done, refreeze friction (re-evaluate), or iterate on (and set
+        the CG forcing term)."""
+        k = self.ctl[S.EVALS]
+        res = self._residual()
+        if k < S.RES_HISTORY:
+            self.res_history[k] = res
+        self.n_history[None] = ti.min(k + 1, S.RES_HISTORY)
+        self.ctl[S.EVALS] = k + 1
+        if k == 0:
+            self.sc[S.RES2_0] = self.sc[S.RES2]
+        self.sc[S.RES_PREV] = res
+        was_update = self.ctl[S.UPDATE]
+        self.ctl[S.UPDATE] = 0
+        capped = self.ctl[S.OUTER] >= self.max_iters[None]
+        small = self.ctl[S.OUTER] > 0 and was_update == 0 and self.sc[S.STEP] <= self.velocity_tol[None] * dt
+        converged = self.sc[S.RES2] <= self.tol2[None] or small
+        # Refreeze the friction multipliers (bounded): at convergence if they moved by more than 10 %,
+        # or at once if they are mostly stale (particles held since the last freeze carry no friction).
+        change = self.sc[S.LAM_CHANGE]
+        stale = change > 0.5 * self.sc[S.LAM_SUM] + 1e-300
+        moved = change > 0.1 * self.sc[S.LAM_SUM] + 1e-300
+        if (stale or (converged and moved)) and not capped and self.ctl[S.UPDATES] < self.max_updates[None]:
+            self.ctl[S.UPDATE] = 1
+            self.ctl[S.UPDATES] += 1
+        elif converged or capped:
+            self.ctl[S.DONE] = 1
+        tol = self.cg_tol[None]
+        if self.ew_forcing[None]:
+            ratio = ti.sqrt(ti.sqrt(self.sc[S.RES2] / ti.max(self.sc[S.RES2_0], 1e-300)))
+            tol = ti.min(0.5, ratio)
+        self._set_cg_tol(tol)
+
+    @ti.func
+    def _set_cg_tol(self, tol):
+        self.pcg.rel_tol[None] = tol
+
+    @ti.func
+    def _iterating(self):
+        """An iteration takes a step now (not done, no friction refreeze pending)."""
+        return self.ctl[S.DONE] == 0 and self.ctl[S.UPDATE] == 0
+
+    @ti.func
+    def _after_direction(self):
+        self.ctl[S.OUTER] += 1
+        self._line_search_begin(1.0, self.ls_iters[None])
+
+    @ti.func
+    def _account(self):
+        self.acc[S.A_STEPS] += 1.0
+        self.acc[S.A_OUTER] += ti.cast(self.ctl[S.OUTER], ti.f64)
+        self.acc[S.A_CG] += ti.cast(self.ctl[S.CG], ti.f64)
+        self.acc[S.A_LS] += ti.cast(self.ctl[S.BACKTRACKS], ti.f64)
+        self.acc[S.A_RES] += ti.cast(self._residual(), ti.f64)
+        self.acc[S.A_UPDATES] += ti.cast(self.ctl[S.UPDATES], ti.f64)
+        self.acc[S.A_CLAMPED] += ti.cast(self.ctl[S.CLAMPED], ti.f64)
+        self.acc[S.A_BOUNCE] += ti.cast(self.ctl[S.BOUNCE_LIMITED], ti.f64)
+
+    # -- the serial driver (inside the kernel that runs many steps) ------------------------------
+    # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so
+    # one loop runs all three phases and every phase function has a single call site (the serial
+    # kernel inlines each call site; fewer sites compile faster).
+    @ti.func
+    def _solve(self, x: ti.template(), dt):
+        for _k in range(self.max_iters[None] + self.max_updates[None] + 3):
+            searching = self.ctl[S.PHASE] < 2
+            if not searching:
+                self._gradient(x, dt)
+                self._after_gradient(dt)
+                if self.ctl[S.DONE]:
+                    break
+                searching = self._iterating()
+                if searching:
+                    self._direction()
+                    self._after_direction()
+            if searching:
+                for _h in range(self.ctl[S.LS_LIMIT] + 1):
+                    self._trial(x, dt)
+                    self._line_search_decide()
+                    if self.ctl[S.LS_DONE]:
+                        break
+                self._accept(x)
+                if self.ctl[S.DONE]:
+                    break
+
+    @ti.func
+    def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
+        self._begin_step(x, v, dt)
+        self._solve(x, dt)
+        self._end_step(x, v, dt, step)
+
+    # -- the parallel driver (Python sequences the same phases, one launch each) -----------------
+    def _solve_python(self, x, dt):
+        for _ in range(int(self.max_iters[None]) + int(self.max_updates[None]) + 3):
+            searching = self.ctl[S.PHASE] < 2
+            if not searching:
+                self._k_gradient_decide(x, dt)
+                if self.ctl[S.DONE]:
+                    break
+                searching = not self.ctl[S.UPDATE]
+                if searching:
+                    self._direction_python()
+                    self._k_after_direction()
+            if searching:
+                for _ in range(int(self.ctl[S.LS_LIMIT]) + 1):
+                    self._k_trial_decide(x, dt)
+                    if self.ctl[S.LS_DONE]:
+                        break
+                self._k_accept(x)
+                if self.ctl[S.DONE]:
+                    break
+
+    @ti.kernel
+    def _k_begin(self, x: ti.template(), v: ti.template(), dt: float):
+        self._begin_step(x, v, dt)
+
+    @ti.kernel
+    def _k_trial_decide(self, x: ti.template(), dt: float):
+        self._trial(x, dt)
+        self._line_search_decide()
+
+    @ti.kernel
+    def _k_accept(self, x: ti.template()):
+        self._accept(x)
+
+    @ti.kernel
+    def _k_gradient_decide(self, x: ti.template(), dt: float):
+        self._gradient(x, dt)
+        self._after_gradient(dt)
+
+    @ti.kernel
+    def _k_add_cg(self, iters: ti.i32):
+        self.ctl[S.CG] += iters
+
+    @ti.kernel
+    def _k_after_direction(self):
+        self._after_direction()
+
+    @ti.kernel
+    def _k_end(self, x: ti.template(), v: ti.template(), dt: float, step: ti.i32):
+        self._end_step(x, v, dt, step)
+
+    # -- phase 4: end --------------------------------------------------------------------------------
+    @ti.func
+    def _end_step(self, x: ti.template(), v: ti.template(), dt, step):
+        """v = (x - x_n)/h; restitution scaled to the energy the step lost; ``_finish``; then, if the
+        step still ends with more energy than it began with (beyond round-off), the counted clamp."""
+        m = self.model
+        g = m.gravity[None]
+        self.sc[S.BOUNCE_A] = 0.0
+        self.sc[S.BOUNCE_B] = 0.0
+        self.sc[S.K_SOLVE] = 0.0
+        self.sc[S.G_END] = 0.0
+        for i in range(self.n):
+            vi = (x[i] - self.x_prev[i]) / dt
+            delta = ti.Vector.zero(float, 3)
+            if ti.static(self.terrain.has_contact):
+                delta = self._bounce(i, vi)
+            self.v_new[i] = vi
+            self.dv[i] = delta
+            if self._free(i):
+                mi = m.mass[i]
+                self.sc[S.K_SOLVE] += 0.5 * mi * vi.dot(vi)
+                self.sc[S.BOUNCE_A] += 0.5 * mi * delta.dot(delta)
+                self.sc[S.BOUNCE_B] += mi * vi.dot(delta)
+                self.sc[S.G_END] -= mi * g.dot(x[i])
+        scale = ti.cast(1.0, float)
+        if ti.static(self.terrain.has_contact):
+            lost = self.sc[S.H_START] - (self.sc[S.K_SOLVE] + self.sc[S.G_END] + self.sc[S.E_CUR])
+            scale = self._bounce_scale(lost)
+        self.sc[S.K_END] = 0.0
+        for i in range(self.n):
+            self._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
+            if self._free(i):
+                self.sc[S.K_END] += 0.5 * m.mass[i] * v[i].dot(v[i])
+        # Last resort, counted in stats(): take the excess out of the kinetic energy.
+        excess = self.sc[S.K_END] + self.sc[S.G_END] + self.sc[S.E_CUR] - self.sc[S.H_START]
+        f = ti.cast(1.0, float)
+        if self.clamp_on[None] and excess > self.energy_tol[None] * self.sc[S.H_SCALE]:
+            self.ctl[S.CLAMPED] = 1
+            k_end = self.sc[S.K_END]
+            if k_end > 0:
+                f = ti.sqrt(ti.max(k_end - excess, 0.0) / k_end)
+        for i in range(self.n):
+            if f < 1.0 and self._free(i):
+                v[i] *= f
+        self._account()
+
+    # -- public API -----------------------------------------------------------------------------------
+    def advance(self, state, dt: float, n_steps: int) -> int:
+        self._sync_masses()
+        self.tol2[None] = (self._tol() * dt * dt) ** 2 * float(self.total_mass[None])
+        self._prepare(dt)
+        if self._serial() or n_steps <= 0 or self.diverged:
+            return super().advance(state, dt, n_steps)
+        start = self._step_counter
+        for k in range(n_steps):
+            self._k_begin(state.x, state.v, dt)
+            self._solve_python(state.x, dt)
+            self._k_end(state.x, state.v, dt, start + k)
+            if self._has_contacts():
+                self._k_body_contacts(state.x, state.v, dt)  # every step ends with body contacts
+            if self.diverged:
+                break
+        self._step_counter += n_steps
+        bad = int(self.diverged_step[None])
+        return bad - start + 1 if self.diverged else n_steps
+
+    def _sync_masses(self):
+        """Total free mass [kg] into its field when ``Model.set_particle_mass`` changed the masses."""
+        if self._mass_version != self.model.mass_version:
+            mass = self.model.mass_np
+            self.total_mass[None] = float(np.sum(mass[mass > 0])) or 1.0
+            self._mass_version = self.model.mass_version
+
+    def reset(self):
+        super().reset()
+        self.acc.fill(0)
+        self.n_history[None] = 0
+
+    def residual(self) -> float:
+        """Residual [m/s^2] of the last gradient evaluation (see ``_residual``)."""
+        return float(np.sqrt(max(float(self.sc[S.RES2]), 0.0) / float(self.total_mass[None]))) / float(self.h2[None])
+
+    def residual_history(self) -> list[float]:
+        """Residual [m/s^2] at each gradient evaluation of the last step (the first at the start)."""
+        return self.res_history.to_numpy()[: int(self.n_history[None])].tolist()
+
+    # Evaluation at a given state, for checks of the objective's derivatives. ``begin`` starts a
+    # step at ``state`` (it does not move the state's free particles); the others evaluate at
+    # ``state.x`` for that step, with no particle held and no friction.
+    def begin(self, state, dt: float):
+        """Start a step of ``dt`` [s] at ``state`` without solving it."""
+        self._sync_masses()
+        self._k_begin(state.x, state.v, dt)
+        self._k_no_contacts()
+
+    def objective(self, state, dt: float) -> float:
+        """g(state.x) [kg m^2] for the step begun last."""
+        self._k_trial_at(state.x, dt, 0.0)
+        return float(self.sc[S.F_TRIAL])
+
+    def gradient(self, state, dt: float) -> np.ndarray:
+        """grad g(state.x) [kg m], an [n, 3] array."""
+        self._k_gradient_decide(state.x, dt)
+        return self.grad.to_numpy()
+
+    def hessian_product(self, state, dt: float, w: np.ndarray) -> np.ndarray:
+        """H w [kg m], H the (PSD-clamped) Hessian the solver uses at state.x; w an [n, 3] array."""
+        self._k_gradient_decide(state.x, dt)
+        src = ti.Vector.field(3, float, self.n)
+        dst = ti.Vector.field(3, float, self.n)
+        src.from_numpy(np.asarray(w, dtype=self.model.real))
+        self._k_apply(src, dst)
+        return dst.to_numpy()
+
+    @ti.kernel
+    def _k_no_contacts(self):
+        for i in range(self.n):
+            self.active[i] = 0
+            self.lam[i] = 0.0
+
+    @ti.kernel
+    def _k_trial_at(self, x: ti.template(), dt: float, alpha: float):
+        for i in range(self.n):
+            self.dx[i] = ti.Vector.zero(float, 3)
+        self.sc[S.ALPHA] = alpha
+        self._trial(x, dt)
+
+    @ti.kernel
+    def _k_apply(self, src: ti.template(), dst: ti.template()):
+        self.apply(src, dst)
+
+    def _take_stats(self) -> list:
+        a = [float(c) for c in self.acc.to_numpy()]
+        self.acc.fill(0)
+        return a
+
+    def _contact_stats(self, a: list, steps: float) -> dict:
+        return {
+            "friction_updates_per_step": a[S.A_UPDATES] / steps,
+            "energy_clamped_steps": int(a[S.A_CLAMPED]),
+            "restitution_limited_steps": int(a[S.A_BOUNCE]),
+        }

@@ -1,0 +1,180 @@
+"""``fast_mass_spring``: the local/global solver of Liu et al. 2013 on the same objective.
+
+E is rewritten with one auxiliary vector per spring, k/2 (|x_a - x_b| - r)^2 =
+min_{|d| = r} k/2 |x_a - x_b - d|^2 (and each damper term likewise). The local step
+d_s = r_s (x_a - x_b)/|x_a - x_b| happens inside the gradient pass; the global step solves the
+constant system (M + L) dx = -grad g, L the graph Laplacian with weights h^2 k_s + h kd_s,
+prefactorised (skyline Cholesky, ``linalg.SkylineCholesky``) and refactorised only when dt, a
+stiffness, a damper coefficient or a mass changes. Under contact the same filtered system is
+solved by PCG preconditioned by that factorisation. The global step is a descent direction of g
+(M + L is SPD), so the shared driver's line search keeps g(x_k) <= g(x_n) at every iterate, and
+its stopping tests apply as for Newton.
+"""
+
+import taichi as ti
+
+from ...linalg import PCG, SkylineCholesky
+from ..base import register
+from . import options as opt
+from . import slots as S
+from .driver import ImplicitIntegrator
+
+CHOLESKY_AUTO_MAX = 10_000_000  # largest factor envelope [values] global_solver = "auto" factorises
+
+
+@register
+@ti.data_oriented
+class FastMassSpring(ImplicitIntegrator):
+    """Local/global solver of Liu et al. 2013 on the same objective, prefactorised global matrix."""
+
+    name = "fast_mass_spring"
+    description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
+    OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.spec(opt.LOCAL_GLOBAL)}
+
+    def __init__(self, model, terrain, options=None):
+        n = model.n_particles
+        solver = self.parse_options(options or {})["global_solver"]
+        if solver == "auto":
+            # The triangular solves are serial: the Cholesky wins on a CPU, PCG on a GPU. Its
+            # envelope grows like N^(5/3) for a cube (N particles), factorising like N^(7/3): past
+            # CHOLESKY_AUTO_MAX values (the 20^3 cube has 6.4e6; the 40^3 one 2e8, 1.6 GB in f64
+            # and an hour-long factorisation) auto takes PCG.
+            cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+            small = SkylineCholesky.envelope_size(n, model.pairs_np) <= CHOLESKY_AUTO_MAX
+            solver = "cholesky" if cpu and small else "pcg"
+        self.global_solver = solver
+        self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
+        self.diag = ti.field(float, n)  # diagonal of M + L (PCG's Jacobi preconditioner) [kg]
+        if solver == "cholesky":
+            self.chol = SkylineCholesky(n, model.pairs_np)
+        self.pcg = PCG(n)
+        self._matrix_key = None
+        self.factorizations = 0
+        super().__init__(model, terrain, options)
+
+    def _tol(self):
+        return self.options["tol"]
+
+    def _max_iterations(self):
+        return self.options["iterations"]
+
+    # -- the constant global matrix A = M + L, L with weights c_s = h^2 k_s + h kd_s -------------
+    def _prepare(self, dt: float):
+        """(Re)build the global matrix when dt, a stiffness, a damper coefficient or a mass changed."""
+        key = (float(dt), self.model.group_k.to_numpy().tobytes(), self.model.group_kd.to_numpy().tobytes(),
+               self.model.mass_version)
+        if key == self._matrix_key:
+            return
+        self._k_weights(dt)
+        if self.global_solver == "cholesky":
+            self._k_assemble()
+            self.chol.factor()
+            if not self.chol.ok[None]:
+                raise FloatingPointError("fast_mass_spring: global matrix is not positive definite (negative stiffness?)")
+        self._matrix_key = key
+        self.factorizations += 1
+
+    @ti.kernel
+    def _k_weights(self, dt: float):
+        m = self.model
+        for g in range(m.n_groups):
+            self.group_c[g] = dt * dt * m.group_k[g] + dt * m.group_kd[g]
+        for i in range(self.n):
+            d = m.mass[i]
+            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                d += self.group_c[m.adj_group[e]]
+            self.diag[i] = d if self._free(i) else 0.0
+
+    @ti.kernel
+    def _k_assemble(self):
+        m = self.model
+        self.chol.clear()
+        for i in range(self.n):
+            # Pinned rows become identity rows: their correction is zero (Dirichlet).
+            self.chol.add(i, i, self.diag[i] if self._free(i) else 1.0)
+        for s in range(m.n_springs):
+            a, b = m.spring_ends[s][0], m.spring_ends[s][1]
+            if self._free(a) and self._free(b):
+                self.chol.add(ti.max(a, b), ti.min(a, b), -self.group_c[m.spring_group[s]])
+
+    # The global step's linear system, filtered by the contact constraints: A dx = rhs with the
+    # normal component of dx fixed to 0 for held particles (as in the Newton solve). PCG
+    # preconditioned by the prefactored Cholesky of the unconstrained A solves it in a few
+    # iterations (the constraints perturb A by a low-rank change); with nothing held the plain
+    # triangular solve is exact.
+    @ti.func
+    def _store_spring_hessian(self, s, hs):
+        pass  # A is constant; the friction blocks come from the gradient
+
+    @ti.func
+    def _store_preconditioner(self, i):
+        pass
+
+    @ti.func
+    def _filter(self, i, q):
+        out = q
+        if not self._free(i):
+            out = ti.Vector.zero(float, 3)
+        elif ti.static(self.terrain.has_contact):
+            if self.active[i]:
+                out = q - self.normal[i].dot(q) * self.normal[i]
+        return out
+
+    @ti.func
+    def apply(self, src: ti.template(), dst: ti.template()):
+        m = self.model
+        for i in range(self.n):
+            q = self.diag[i] * src[i] + self.fric_hess[i] @ src[i]  # friction: not in the factorisation
+            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                q -= self.group_c[m.adj_group[e]] * src[m.adj_other[e]]
+            dst[i] = self._filter(i, q)
+
+    @ti.func
+    def precondition(self, src: ti.template(), dst: ti.template()):
+        if ti.static(self.global_solver == "cholesky"):
+            self.chol.solve(src, dst)
+            for i in range(self.n):
+                dst[i] = self._filter(i, dst[i])
+        else:
+            for i in range(self.n):
+                dst[i] = self._filter(i, src[i] / ti.max(self.diag[i], 1e-300))
+
+    @ti.func
+    def _direction(self):
+        if ti.static(self.global_solver == "cholesky"):
+            if self.sc[S.N_ACTIVE] == 0:
+                self.chol.solve(self.rhs, self.dx)  # nothing held: the factorisation is exact
+            else:
+                self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
+                self.ctl[S.CG] += self.pcg.iters[None]
+        else:
+            self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
+            self.ctl[S.CG] += self.pcg.iters[None]
+
+    def _direction_python(self):
+        if self.global_solver == "cholesky" and self.sc[S.N_ACTIVE] == 0:
+            self.chol.solve_kernel(self.rhs, self.dx)
+        else:
+            self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
+
+    @ti.func
+    def _set_cg_tol(self, tol):
+        self.pcg.rel_tol[None] = self.cg_tol[None]  # the outer iteration corrects the rest
+
+    def stats(self) -> dict:
+        """Averages per step since the last call (or reset): local/global iterations, CG
+        iterations, line-search halvings, friction refreezes, final residual [m/s^2]; the global
+        solver and how often the matrix was factorised so far; restitution-limited and
+        energy-clamped step counts."""
+        a = self._take_stats()
+        steps = max(a[S.A_STEPS], 1.0)
+        return {
+            "steps": int(a[S.A_STEPS]),
+            "local_global_iterations_per_step": a[S.A_OUTER] / steps,
+            "cg_iterations_per_step": a[S.A_CG] / steps,
+            "line_search_halvings_per_step": a[S.A_LS] / steps,
+            "final_residual_m_s2": a[S.A_RES] / steps,
+            "global_solver": self.global_solver,
+            "factorizations": self.factorizations,
+            **self._contact_stats(a, steps),
+        }

@@ -1,0 +1,112 @@
+"""``implicit_euler``: backward Euler by Newton's method on the step's objective.
+
+The Hessian is applied matrix-free (Baraff & Witkin 1998), each spring's 3x3 block
+h^2 k (l l^T + max(0, 1 - r/|d|)(I - l l^T)) + h kd l_s l_s^T stored once per spring (the clamp
+of the transverse factor under compression keeps it PSD, Choi & Ko 2002, so every direction is a
+descent direction); PCG with the 3x3 block-Jacobi preconditioner, an Eisenstat-Walker forcing
+term by default. Line search, contact and stopping are the shared driver's (driver.py).
+"""
+
+import taichi as ti
+
+from ...linalg import PCG
+from ..base import register
+from . import options as opt
+from . import slots as S
+from .driver import ImplicitIntegrator
+
+
+@register
+@ti.data_oriented
+class ImplicitEuler(ImplicitIntegrator):
+    """Backward Euler by Newton's method on g(x), matrix-free PCG, Armijo backtracking."""
+
+    name = "implicit_euler"
+    description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
+    OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.spec(opt.NEWTON)}
+
+    def __init__(self, model, terrain, options=None):
+        n, m = model.n_particles, max(model.n_springs, 1)
+        self.spring_hess = ti.Matrix.field(3, 3, float, m)  # h^2 (PSD spring Hessian) + h kd l l^T [kg]
+        self.precond = ti.Matrix.field(3, 3, float, n)  # inverse 3x3 diagonal blocks [1/kg]
+        self.pcg = PCG(n)
+        super().__init__(model, terrain, options)
+
+    def _tol(self):
+        return self.options["newton_tol"]
+
+    def _max_iterations(self):
+        return self.options["newton_iters"]
+
+    @ti.func
+    def _store_spring_hessian(self, s, hs):
+        self.spring_hess[s] = hs
+
+    @ti.func
+    def _store_preconditioner(self, i):
+        """Inverse of particle i's diagonal block (mass, springs, friction), filtered if held."""
+        m = self.model
+        diag = m.mass[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+        for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+            s = m.adj_spring[e]
+            diag += self.spring_hess[s if s >= 0 else -s - 1]
+        pinv = ti.Matrix.zero(float, 3, 3)
+        if self._free(i):
+            if ti.static(self.terrain.has_contact):
+                if self.active[i]:
+                    # S D S + N N^T: the constrained block, kept invertible; its inverse maps the
+                    # tangent plane to itself, so PCG stays in that subspace.
+                    nrm = self.normal[i]
+                    sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+                    pinv = sp @ (sp @ diag @ sp + nrm.outer_product(nrm)).inverse() @ sp
+                else:
+                    pinv = diag.inverse()
+            else:
+                pinv = diag.inverse()
+        self.precond[i] = pinv
+
+    # PCG operator: the filtered Hessian H = M + h^2 K_psd + h D + friction, applied per particle by
+    # gathering its springs' blocks (no atomics, no assembled matrix).
+    @ti.func
+    def apply(self, src: ti.template(), dst: ti.template()):
+        m = self.model
+        for i in range(self.n):
+            q = m.mass[i] * src[i] + self.fric_hess[i] @ src[i]
+            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                s = m.adj_spring[e]
+                q += self.spring_hess[s if s >= 0 else -s - 1] @ (src[i] - src[m.adj_other[e]])
+            if not self._free(i):
+                q = ti.Vector.zero(float, 3)
+            elif ti.static(self.terrain.has_contact):
+                if self.active[i]:
+                    q -= self.normal[i].dot(q) * self.normal[i]
+            dst[i] = q
+
+    @ti.func
+    def precondition(self, src: ti.template(), dst: ti.template()):
+        for i in range(self.n):
+            dst[i] = self.precond[i] @ src[i]
+
+    @ti.func
+    def _direction(self):
+        self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
+        self.ctl[S.CG] += self.pcg.iters[None]
+
+    def _direction_python(self):
+        self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
+
+    def stats(self) -> dict:
+        """Averages per step since the last call (or reset): Newton and CG iterations, line-search
+        halvings, friction refreezes, the final residual [m/s^2] (see ``_residual``); counts of steps
+        whose restitution was limited to the energy the step lost, and of energy-clamped steps."""
+        a = self._take_stats()
+        steps = max(a[S.A_STEPS], 1.0)
+        return {
+            "steps": int(a[S.A_STEPS]),
+            "newton_iterations_per_step": a[S.A_OUTER] / steps,
+            "cg_iterations_per_step": a[S.A_CG] / steps,
+            "cg_iterations_per_newton": a[S.A_CG] / max(a[S.A_OUTER], 1.0),
+            "line_search_halvings_per_step": a[S.A_LS] / steps,
+            "final_residual_m_s2": a[S.A_RES] / steps,
+            **self._contact_stats(a, steps),
+        }

@@ -1,0 +1,171 @@
+"""The step's objective: inertia, springs, dampers and contact friction, its gradient and values.
+
+    g(x) = 1/2 (x - y)^T M (x - y) + h^2 E(x) + h^2 D(x) + sum_held mu lam_i f0(|u_t,i|)
+    y = x_n + h v_n + h^2 g_grav,  u = x - x_n
+
+E: Hooke springs, sum_s k_s/2 (|x_a - x_b| - r_s)^2. D: the dampers' Rayleigh dissipation with
+each damper direction l_s frozen at x_n, h^2 D = sum_s h kd_s/2 (l_s . (u_a - u_b))^2 (its
+gradient / h^2 is the seed's damper force at v = u/h). Friction: the lagged dissipative potential
+of IPC (Li et al. 2020) with each held particle's multiplier lam_i (h^2 |F_n|) frozen for the
+solve (see contact.py); f0 is the Huber function with length friction_velocity * h.
+
+Every term is zero or minimal at x_n except inertia and springs, and the friction term is zero at
+x_n for any multiplier, so g(x) <= g(x_n) bounds the energy a step can store whatever the
+multipliers are (docs/implicit.md).
+"""
+
+import taichi as ti
+
+from ...forces import spring_energy, spring_energy_derivatives
+from . import slots as S
+
+
+@ti.data_oriented
+class Objective:
+    """Mixin of ``ImplicitIntegrator``: fields and ti.funcs of the objective."""
+
+    def _init_objective(self, model):
+        n, m = self.n, max(model.n_springs, 1)
+        vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
+        self.x_prev = vec(n)  # x_n [m]
+        self.v_prev = vec(n)  # v_n [m/s]
+        self.y = vec(n)  # inertial target x_n + h v_n + h^2 g [m]
+        self.grad = vec(n)  # gradient of the objective [kg m]
+        self.rhs = vec(n)  # -grad with held particles' normal components removed [kg m]
+        self.dx = vec(n)  # update direction of the current iteration [m]
+        self.x_trial = vec(n)  # line-search trial point [m]
+        self.spring_dir = vec(m)  # damper direction l_s at x_n (frozen over the step)
+        self.spring_grad = vec(m)  # d(h^2 (E + D))/dx_a per spring [kg m]
+        self.fric_hess = ti.Matrix.field(3, 3, float, n)  # Hessian block of a held particle's friction [kg]
+        self.fric_eps = ti.field(float, ())  # friction smoothing length friction_velocity * h [m]
+        self.friction_velocity = ti.field(float, ())  # [m/s], from the option (a field: read in kernels)
+        self.total_mass = ti.field(float, ())  # sum of free particles' masses [kg] (see _sync_masses)
+        self.h2 = ti.field(float, ())  # h^2 of the current step [s^2]
+
+    @ti.func
+    def _free(self, i):
+        """Pinned particles (inverse mass 0) follow their own velocity and are not solved for."""
+        return self.model.inv_mass[i] > 0
+
+    @ti.func
+    def _friction(self, i, xi, nrm, lam):
+        """Friction term of a held particle at xi: (energy [kg m^2], gradient [kg m], Hessian [kg]).
+
+        mu lam f0(|u_t|), u_t = (I - N N^T)(xi - x_n), f0 the Huber function (|u_t| beyond eps =
+        friction_velocity * h, quadratic below): the gradient is mu lam u_t/|u_t|, Coulomb's bound
+        mu |F_n| times h^2. Beyond eps the Hessian is that of the quadratic majorant
+        c |u|^2 / (2 |u_t|) + c |u_t| / 2 (iteratively reweighted least squares): a Newton step then
+        never carries the particle past the point where friction stops it, which the exact Hessian,
+        with no curvature along u_t, would; it is PSD and continuous at eps.
+        """
+        tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+        u = tp @ (xi - self.x_prev[i])
+        sl = u.norm()
+        eps = self.fric_eps[None]
+        c = self.terrain.friction[None] * lam
+        energy = ti.cast(0.0, float)
+        grad = ti.Vector.zero(float, 3)
+        hess = ti.Matrix.zero(float, 3, 3)
+        if sl < eps:
+            energy = 0.5 * c * sl * sl / eps
+            grad = (c / eps) * u
+            hess = (c / eps) * tp
+        else:
+            energy = c * (sl - 0.5 * eps)
+            grad = (c / sl) * u
+            hess = (c / sl) * tp
+        return energy, grad, hess
+
+    @ti.func
+    def _spring_terms(self, x: ti.template(), s, dt):
+        """(gradient of h^2 (E + D) w.r.t. end a [kg m], h^2 E_s Hessian block + h kd l l^T [kg])."""
+        m = self.model
+        a, b = m.spring_ends[s][0], m.spring_ends[s][1]
+        grp = m.spring_group[s]
+        ge, he = spring_energy_derivatives(m, x, a, b, m.spring_rest[s], grp)
+        l = self.spring_dir[s]
+        u = (x[a] - self.x_prev[a]) - (x[b] - self.x_prev[b])
+        kd = m.group_kd[grp]
+        return dt * dt * ge + (dt * kd * l.dot(u)) * l, dt * dt * he + (dt * kd) * l.outer_product(l)
+
+    @ti.func
+    def _gradient(self, x: ti.template(), dt):
+        """grad g(x), the filtered residual ``rhs`` and its norm (``RES2``), from one pass over springs
+        and one gather per particle. The contact active set (hold, release, multipliers) is updated
+        per particle by ``_contact_gradient`` (contact.py). The same passes store what the solver's
+        linear operator needs (``_store_spring_hessian``, ``_store_preconditioner``): one pass
+        instead of a separate Hessian phase halves the serial kernel's compile time."""
+        m = self.model
+        for s in range(m.n_springs):
+            g, hs = self._spring_terms(x, s, dt)
+            self.spring_grad[s] = g
+            self._store_spring_hessian(s, hs)
+        self.sc[S.RES2] = 0.0
+        self.sc[S.N_ACTIVE] = 0.0
+        self.sc[S.LAM_CHANGE] = 0.0
+        self.sc[S.LAM_SUM] = 0.0
+        for i in range(self.n):
+            gi = m.mass[i] * (x[i] - self.y[i])
+            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                s = m.adj_spring[e]
+                if s >= 0:
+                    gi += self.spring_grad[s]
+                else:
+                    gi -= self.spring_grad[-s - 1]
+            r = ti.Vector.zero(float, 3)
+            if self._free(i):
+                if ti.static(self.terrain.has_contact):
+                    gi = self._contact_gradient(i, x[i], gi, dt)
+                r = -gi
+                if ti.static(self.terrain.has_contact):
+                    if self.active[i]:
+                        r -= self.normal[i].dot(r) * self.normal[i]
+                        self.sc[S.N_ACTIVE] += 1.0
+            else:
+                gi = ti.Vector.zero(float, 3)
+            self.grad[i] = gi
+            self.rhs[i] = r
+            self.sc[S.RES2] += r.dot(r) * m.inv_mass[i]
+            self._store_preconditioner(i)
+
+    @ti.func
+    def _trial(self, x: ti.template(), dt):
+        """x_trial = x + alpha dx (alpha = sc[ALPHA]) made feasible (``_project``, contact.py); the
+        objective there (``F_TRIAL``), its spring energy, grad . (x_trial - x) and the largest move."""
+        m = self.model
+        alpha = self.sc[S.ALPHA]
+        self.sc[S.F_TRIAL] = 0.0
+        self.sc[S.DEC] = 0.0
+        self.sc[S.E_TRIAL] = 0.0
+        self.sc[S.STEP_TRIAL] = 0.0
+        for i in range(self.n):
+            xi = x[i] + alpha * self.dx[i]
+            if ti.static(self.terrain.has_contact):
+                xi = self._project(i, xi, alpha > 0)  # alpha = 0: the current point exactly
+            else:
+                self.x_trial[i] = xi
+            if self._free(i):
+                diff = xi - self.y[i]
+                self.sc[S.F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff)
+                if ti.static(self.terrain.has_contact):
+                    if self.lam[i] > 0:  # held when lam was frozen, hence held here too
+                        fe, _fg, _fh = self._friction(i, xi, self.trial_normal[i], self.lam[i])
+                        self.sc[S.F_TRIAL] += fe
+            move = xi - x[i]
+            self.sc[S.DEC] += self.grad[i].dot(move)
+            ti.atomic_max(self.sc[S.STEP_TRIAL], move.norm())
+        for s in range(m.n_springs):
+            a, b = m.spring_ends[s][0], m.spring_ends[s][1]
+            grp = m.spring_group[s]
+            u = (self.x_trial[a] - self.x_prev[a]) - (self.x_trial[b] - self.x_prev[b])
+            lu = self.spring_dir[s].dot(u)
+            es = spring_energy(m, self.x_trial, a, b, m.spring_rest[s], grp)
+            self.sc[S.E_TRIAL] += es
+            self.sc[S.F_TRIAL] += dt * dt * es + 0.5 * dt * m.group_kd[grp] * lu * lu
+
+    @ti.func
+    def _residual(self):
+        """Residual [m/s^2]: sqrt(sum_i |r_i|^2 / m_i / sum_i m_i) / h^2, the mass-weighted RMS of
+        the unbalanced force per unit mass (r: the gradient with held particles' normal
+        components removed, the KKT residual). An acceleration means the same at every step size."""
+        return ti.sqrt(ti.max(self.sc[S.RES2], 0.0) / self.total_mass[None]) / self.h2[None]

@@ -1,0 +1,81 @@
+"""Options of the implicit integrators, typed and documented in one place.
+
+Each option is an ``Option`` (default, check, what is allowed, meaning with unit); ``spec()``
+turns a table into the ``OPTIONS`` mapping ``Integrator.parse_options`` reads. A scene sets them
+in its ``[solver]`` table or with ``--set solver.NAME=VALUE``; docs/implicit.md lists them.
+"""
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Option:
+    default: Any
+    check: Callable[[Any], bool]
+    allowed: str  # what is allowed, for the error message
+    doc: str  # meaning, with its unit
+
+
+def _int_at_least(lo):
+    return lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= lo
+
+
+def _number_in(lo, hi, lo_open=False):
+    def check(v):
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v):
+            return False
+        return (v > lo if lo_open else v >= lo) and v <= hi
+    return check
+
+
+def _bool(v):
+    return isinstance(v, bool)
+
+
+# Options of both solvers: contact, line search, stopping, the last-resort energy clamp.
+SHARED = {
+    "friction_velocity": Option(1e-3, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
+                                "sliding speed [m/s] below which friction is smoothed (static-friction creep)"),
+    "velocity_tol": Option(1e-3, _number_in(0.0, 1e3), "a number in [0, 1000]",
+                           "stop iterating once an update moves no particle faster than this [m/s] (0: off)"),
+    "line_search_iters": Option(12, _int_at_least(0), "an integer >= 0",
+                                "most step halvings per iteration (backtracking on the step's objective)"),
+    "friction_updates": Option(4, _int_at_least(0), "an integer >= 0",
+                               "most outer updates of the frozen friction multipliers per step"),
+    "cg_iters": Option(200, _int_at_least(1), "an integer >= 1", "most CG iterations per linear solve"),
+    "energy_clamp": Option(True, _bool, "true or false",
+                           "last resort: scale velocities back if a step still ends with more energy than it "
+                           "began with (every use is counted in stats())"),
+}
+
+NEWTON = {
+    **SHARED,
+    "newton_iters": Option(20, _int_at_least(1), "an integer >= 1", "most Newton iterations per step"),
+    "newton_tol": Option(0.1, _number_in(0.0, 1e3), "a number in [0, 1000]",
+                         "residual [m/s^2] at which Newton stops (0: only the other tests stop it)"),
+    "forcing": Option("eisenstat_walker", lambda v: v in ("eisenstat_walker", "fixed"), "eisenstat_walker or fixed",
+                      "CG tolerance per Newton iteration: min(0.5, sqrt(|r_k|/|r_0|)) (Eisenstat-Walker) "
+                      "or the fixed cg_tol"),
+    "cg_tol": Option(1e-2, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
+                     "relative (preconditioned) CG residual when forcing = fixed"),
+}
+
+LOCAL_GLOBAL = {
+    **SHARED,
+    "iterations": Option(20, _int_at_least(1), "an integer >= 1", "most local/global iterations per step"),
+    "tol": Option(0.1, _number_in(0.0, 1e3), "a number in [0, 1000]",
+                  "residual [m/s^2] at which iterations stop early (0: only the other tests stop them)"),
+    "global_solver": Option("auto", lambda v: v in ("auto", "cholesky", "pcg"), "auto, cholesky or pcg",
+                            "cholesky: prefactored skyline Cholesky (as PCG preconditioner under contact); "
+                            "pcg: matrix-free Jacobi PCG; auto: cholesky on a CPU while the factor is small"),
+    "cg_tol": Option(0.1, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
+                     "relative CG residual of a global step (with contacts, or with pcg)"),
+}
+
+
+def spec(table: dict) -> dict:
+    """``{name: (default, check, allowed)}`` as ``Integrator.OPTIONS`` expects."""
+    return {name: (o.default, o.check, f"{o.allowed} ({o.doc})") for name, o in table.items()}
