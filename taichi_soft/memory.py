@@ -62,6 +62,9 @@ class FieldCounts:
     def __add__(self, other: "FieldCounts") -> "FieldCounts":
         return FieldCounts(*(a + b for a, b in zip(self.astuple(), other.astuple())))
 
+    def __sub__(self, other: "FieldCounts") -> "FieldCounts":
+        return FieldCounts(*(a - b for a, b in zip(self.astuple(), other.astuple())))
+
     def astuple(self):
         return (self.particle_reals, self.particle_ints, self.spring_reals, self.spring_ints)
 
@@ -70,25 +73,32 @@ class FieldCounts:
                 + n_springs * (self.spring_reals * real_bytes + self.spring_ints * 4))
 
 
-# What each part allocates (the source files are the truth; the test keeps this table honest).
+# Field entries of the model, the state and each integrator together, per force-strategy family
+# (forces.py: "scatter", the CPU default in both launch modes, keeps a slab-ordered copy of the
+# springs: ends, rest, group and (k, kd); "gather", the GPU default, keeps (k, kd) per adjacency
+# entry and ping-pong state buffers). Measured from the fields the code allocates at two sizes
+# in f32 and f64 (tests/test_memory.py checks the table against the allocation); the source files
+# are the truth. fast_mass_spring's Cholesky factor is counted separately ("cholesky").
+_MODEL = FieldCounts(2, 2, 3, 9)  # mass, inv_mass, adj_offset, adj_split | rest x2, ends, groups, adjacency
 FIELDS = {
-    # model.py: mass, inv_mass; adj_offset, adj_split | spring_rest, adj_rest (2 per spring);
-    # spring_ends (2), spring_group, adj_other, adj_group, adj_spring (2 each per spring)
-    "model": FieldCounts(2, 2, 3, 9),
-    "state": FieldCounts(6, 0, 0, 0),  # x, v
-    "per_spring": FieldCounts(0, 0, 3, 0),  # forces.py: spring_f, only for the per-spring strategy
-    # integrators/explicit.py
-    "semi_implicit_euler": FieldCounts(3, 0, 0, 0),  # a
-    "explicit_euler": FieldCounts(9, 0, 0, 0),  # kv[0], xs, vs (xs, vs unused by a 1-stage method)
-    "midpoint": FieldCounts(15, 0, 0, 0),  # kx[1], kv[0..1], xs, vs
-    "rk4": FieldCounts(27, 0, 0, 0),  # kx[1..3], kv[0..3], xs, vs
-    # integrators/implicit.py: 9 vec3 + lam + fric_hess (3x3) per particle, active + trial_active;
-    # spring_dir, spring_grad per spring
-    "implicit": FieldCounts(37, 2, 6, 0),
-    "implicit_euler": FieldCounts(9 + 12, 0, 9, 0),  # precond (3x3), PCG r z p q | spring_hess (3x3)
-    "fast_mass_spring": FieldCounts(1 + 12, 0, 0, 0),  # diag, PCG r z p q
+    ("semi_implicit_euler", "scatter"): FieldCounts(11, 2, 6, 12),
+    ("explicit_euler", "scatter"): FieldCounts(11, 2, 6, 12),
+    ("midpoint", "scatter"): FieldCounts(29, 2, 6, 12),
+    ("rk4", "scatter"): FieldCounts(29, 2, 6, 12),
+    ("implicit_euler", "scatter"): FieldCounts(72, 5, 21, 9),
+    ("fast_mass_spring", "scatter"): FieldCounts(64, 5, 12, 9),
+    ("semi_implicit_euler", "gather"): FieldCounts(8, 2, 7, 9),
+    ("explicit_euler", "gather"): FieldCounts(8, 2, 7, 9),
+    ("midpoint", "gather"): FieldCounts(26, 2, 7, 9),
+    ("rk4", "gather"): FieldCounts(26, 2, 7, 9),
+    ("implicit_euler", "gather"): FieldCounts(72, 5, 18, 9),
+    ("fast_mass_spring", "gather"): FieldCounts(64, 5, 9, 9),
     "cholesky": FieldCounts(3, 2, 0, 0),  # linalg.SkylineCholesky: tmp, start, offset (+ the envelope)
+    "state": FieldCounts(6, 0, 0, 0),  # x, v (included in the totals above)
 }
+# Host bytes per spring while the scatter strategy sorts the springs into slabs (downloads of the
+# ends, rest lengths and groups, the sort order and the reordered copies): a transient at start-up.
+SCATTER_TRANSIENT_SPRING_BYTES = 64
 EXPLICIT = ("semi_implicit_euler", "explicit_euler", "midpoint", "rk4")
 IMPLICIT = ("implicit_euler", "fast_mass_spring")
 HOST_PARTICLE_BYTES = 56  # model.x0_np, v0_np (float64 vec3) and mass_np (float64)
@@ -100,16 +110,6 @@ def scene_counts(scene_data: dict) -> tuple[int, int]:
 
     ns = [int(b["n"]) for b in scene_data["body"]]
     return sum(n**3 for n in ns), sum(spring_count(n) for n in ns)
-
-
-def _serial(scene_data: dict, arch: str, n_particles: int) -> bool:
-    """Whether the integrator launches serially (and so uses the per-spring force strategy)."""
-    from .integrators.base import SERIAL_MAX_PARTICLES
-
-    mode = scene_data.get("solver", {}).get("mode", "auto")
-    if mode == "auto":
-        return arch == "cpu" and n_particles <= SERIAL_MAX_PARTICLES
-    return mode == "serial"
 
 
 def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
@@ -135,21 +135,24 @@ def _envelope_transient(scene_data: dict, integrator: str, n_p: int, n_s: int, r
     """
     if integrator != "fast_mass_spring" or scene_data.get("solver", {}).get("global_solver", "auto") == "pcg":
         return 0
-    later = (FIELDS["fast_mass_spring"] + FIELDS["state"]).bytes(n_p, n_s, real)
+    later = (FIELDS[("fast_mass_spring", "scatter")] - _MODEL).bytes(n_p, n_s, real)
     return max(0, 16 * n_s + 16 * n_p - later)
 
 
-def field_counts(integrator: str, serial: bool, cholesky: bool = False) -> FieldCounts:
-    """Per-particle and per-spring field entries of the model, state and ``integrator``
-    (an unknown name counts as the largest explicit one); ``cholesky``: with the factor's
-    index fields (its values are counted by ``_cholesky_values``)."""
-    counts = FIELDS["model"] + FIELDS["state"] + FIELDS.get(integrator, FIELDS["rk4"])
-    if integrator in IMPLICIT:
-        counts = counts + FIELDS["implicit"]
+def force_family(scene_data: dict, arch: str) -> str:
+    """"scatter" or "gather": which force strategy (forces.py) a run's ``[solver] forces`` and
+    backend pick (``per_spring`` is counted as scatter, its close upper bound)."""
+    forces = scene_data.get("solver", {}).get("forces", "auto")
+    return "gather" if forces == "gather" or (forces == "auto" and arch != "cpu") else "scatter"
+
+
+def field_counts(integrator: str, family: str = "scatter", cholesky: bool = False) -> FieldCounts:
+    """Per-particle and per-spring field entries of the model, state and ``integrator`` with the
+    force strategy ``family`` (an unknown integrator counts as RK4); ``cholesky``: with the
+    factor's index fields (its values are counted by ``_cholesky_values``)."""
+    counts = FIELDS.get((integrator, family), FIELDS[("rk4", family)])
     if cholesky:
         counts = counts + FIELDS["cholesky"]
-    if serial:
-        counts = counts + FIELDS["per_spring"]
     return counts
 
 
@@ -172,11 +175,11 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     arch = resolve_arch(arch)
     real = 8 if precision == "f64" else 4
     n_p, n_s = scene_counts(scene_data)
-    serial = _serial(scene_data, arch, n_p)
+    family = force_family(scene_data, arch)
     fields = 0
     for name in names:
         nnz = _cholesky_values(scene_data, name, arch)
-        fields += field_counts(name, serial, nnz > 0).bytes(n_p, n_s, real) + nnz * real
+        fields += field_counts(name, family, nnz > 0).bytes(n_p, n_s, real) + nnz * real
         fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
     if len(scene_data["body"]) > 1:  # body-body contact: one per simulation
         fields += len(names) * collision.field_bytes(n_p, real)
@@ -192,7 +195,10 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
         host += 2 * frames * n_p * 2 * 3 * real  # the frames kept, and their stacked copy when written
     device = 0
     if arch == "cpu":
-        host += fields + max(_envelope_transient(scene_data, name, n_p, n_s, real) for name in names)
+        transient = max(_envelope_transient(scene_data, name, n_p, n_s, real) for name in names)
+        if family == "scatter":
+            transient = max(transient, SCATTER_TRANSIENT_SPRING_BYTES * n_s)
+        host += fields + transient
     else:
         host += GPU_HOST_EXTRA_BYTES
         device = GPU_DEVICE_BASE_BYTES + fields

@@ -68,7 +68,7 @@ class Simulation:
     """
 
     def __init__(self, scene: Scene, integrator: str | None = None, dt: float | None = None,
-                 options: dict | None = None):
+                 options: dict | None = None, check: bool = True):
         data = scene.data
         self.scene = scene
         builder = ModelBuilder(gravity=data["sim"]["gravity"])
@@ -91,7 +91,8 @@ class Simulation:
         self.steps = 0
         self.diverged_step: int | None = None
         self.reset()
-        check_start(self)
+        if check:  # refuse a body inside the terrain or another body (UserError)
+            check_start(self)
 
     # -- clock ---------------------------------------------------------------------------
     @property

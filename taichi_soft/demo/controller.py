@@ -129,7 +129,10 @@ class DemoController:
     def _build(self, scene):
         """A new ``Simulation`` for ``scene`` with every current setting applied, at its start."""
         s = self.settings
-        sim = Simulation(scene, integrator=s.integrator, dt=s.dt, options=self._options(s.integrator, scene))
+        # The window places the body itself (height, rotation: set_pose), so the scene's own start
+        # is not checked against the terrain here.
+        sim = Simulation(scene, integrator=s.integrator, dt=s.dt, options=self._options(s.integrator, scene),
+                         check=False)
         self.sim = sim
         self._integrators = {s.integrator: sim.integrator}
         self._scene_x0 = sim.model.x0_np.copy()  # the scene's own pose, before height / rotation
@@ -179,8 +182,8 @@ class DemoController:
         if kind == self.sim.terrain.kind:
             return
         scene = self._load(self.overrides + [f"terrain.kind={kind}"])
-        self.settings.terrain = kind
         self._build(scene)
+        self.settings.terrain = kind
 
     # -- live parameters --------------------------------------------------------------------
     def set_dt(self, dt: float):
