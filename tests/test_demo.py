@@ -145,7 +145,8 @@ def test_divergence_pauses_with_a_message_and_reset_recovers(fresh):
 
 
 def test_controls_reject_unknown_names(fresh):
-    
+    from taichi_soft.errors import UserError
+
     with pytest.raises(UserError):
         fresh.set_integrator("leapfrog")
     with pytest.raises(UserError):
