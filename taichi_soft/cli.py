@@ -209,7 +209,7 @@ def cmd_run(args) -> int:
     import numpy as np
 
     from .progress import CountBar
-    from .simulation import Simulation, states_arrays
+    from .simulation import Simulation, states_arrays, step_count
 
     scene = load_scene_from_args(args)
     check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
@@ -232,7 +232,7 @@ def cmd_run(args) -> int:
         recorder = FrameRecorder(sim, render_options,
                                  progress=lambda k, s: bar.update(k, f"frame {k}/{n_frames} t={s.time:6.3f}s"))
     else:
-        bar = CountBar(int(round(duration / sim.dt)), label, unit="step")
+        bar = CountBar(step_count(duration, sim.dt), label, unit="step")
         step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
     try:
         result = sim.run(duration, fps, on_frame=recorder, record=states_path is not None, progress=step_progress)
@@ -285,7 +285,9 @@ def cmd_run(args) -> int:
 
 def _note_whole_steps(duration: float, dt: float):
     """Say what is simulated when the duration is not a whole number of steps."""
-    steps = max(int(round(duration / dt)), 1)
+    from .simulation import step_count
+
+    steps = step_count(duration, dt)
     if abs(steps * dt - duration) > 1e-9 * duration:
         print(f"note: simulating {steps} steps of {dt:g} s = {steps * dt:g} s (sim.duration {duration:g} s "
               "is not a whole number of steps)", file=sys.stderr)

@@ -48,12 +48,16 @@ def field_bytes(n_particles: int, real_bytes: int) -> int:
     return table_size(n_particles) * (1 + CELL_CAPACITY) * 4 + n_particles * (3 * 4 + 7 * real_bytes)
 
 
+def body_radius(spec) -> float:
+    """Contact radius [m] of a body's particles: half its lattice spacing."""
+    return 0.5 * spec.size / (spec.n - 1)
+
+
 def contact_radii(model) -> np.ndarray:
-    """Contact radius [m] of every particle: half its body's lattice spacing."""
+    """Contact radius [m] of every particle (``body_radius`` of its body)."""
     r = np.zeros(model.n_particles)
     for body in model.bodies:
-        spec = body.spec
-        r[body.particles] = 0.5 * spec.size / (spec.n - 1)
+        r[body.particles] = body_radius(body.spec)
     return r
 
 
@@ -196,17 +200,10 @@ class BodyContacts:
     @ti.func
     def _impulse(self, rel, n):
         """Change [m/s] of the relative velocity ``rel`` of a pair in contact along unit normal n:
-        approach removed (reflected with restitution above the bounce threshold), tangential
-        velocity reduced by mu times that, never reversed."""
+        the terrain's impact response (restitution above the bounce threshold, Coulomb friction on
+        the impulse, never reversing), always with friction."""
         dv = ti.Vector.zero(float, 3)
         vn = rel.dot(n)
         if vn < 0:
-            t = self.terrain
-            kr = t.restitution[None] * ti.cast(-vn > t.bounce_threshold[None], float)
-            jn = -(1.0 + kr) * vn
-            vt = rel - vn * n
-            tn = vt.norm()
-            dv = jn * n
-            if tn > 0:
-                dv -= ti.min(t.friction[None] * jn, tn) / tn * vt
+            dv = self.terrain.impact_response(rel, n, vn, 1) - rel
         return dv

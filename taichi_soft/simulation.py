@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import runtime
-from .collision import BodyContacts, contact_radii
+from .collision import BodyContacts, body_radius
 from .errors import UserError
 from .lattice import rotation_matrix
 from .forces import Diagnostics
@@ -33,6 +33,11 @@ def body_spec(body: dict) -> BodySpec:
         shear=(body["shear"]["k"], body["shear"]["damping"]),
         bend=(body["bend"]["k"], body["bend"]["damping"]),
     )
+
+
+def step_count(duration: float, dt: float) -> int:
+    """Whole steps of ``dt`` [s] a run of ``duration`` [s] takes: the nearest number, at least one."""
+    return max(int(round(duration / dt)), 1)
 
 
 def frame_steps(total_steps: int, fps: float, dt: float) -> list[int]:
@@ -159,7 +164,7 @@ class Simulation:
         ``record`` the (t, x, v) of each of those is kept in ``RunResult.frames``. ``progress``,
         if given, is called as ``progress(steps_done, total_steps, sim)``.
         """
-        total = max(int(round(duration / self.dt)), 1)
+        total = step_count(duration, self.dt)
         schedule = frame_steps(total, fps, self.dt)
         frames = []
         start = time.perf_counter()
@@ -224,12 +229,11 @@ def check_start(sim: Simulation):
         if depth > 0:
             raise UserError(f"body.{b} starts {depth:.3g} m inside the terrain ({sim.terrain.kind}); "
                             f"move it out (body.{b}.center)")
-    radii = contact_radii(sim.model)
     x0 = sim.model.x0_np
-    for b, body in enumerate(sim.model.bodies):
+    bodies = sim.model.bodies
+    for b, body in enumerate(bodies):
         for a in range(b):
-            depth = overlap_depth(sim.model.bodies[a].spec, x0[body.particles], radii[sim.model.bodies[a].particles][0],
-                                  radii[body.particles][0])
+            depth = overlap_depth(bodies[a].spec, x0[body.particles], body_radius(bodies[a].spec), body_radius(body.spec))
             if depth > 0:
                 raise UserError(f"body.{b} starts {depth:.3g} m inside body.{a} (particles of different bodies "
                                 f"must start at least their contact distance apart); move them apart (body.{b}.center)")

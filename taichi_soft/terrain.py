@@ -144,9 +144,15 @@ class Terrain:
     @ti.func
     def impact(self, v, n, vn):
         """Velocity after an impact with approach velocity vn = v . n < 0 along unit normal n."""
+        return self.impact_response(v, n, vn, self.impact_friction[None])
+
+    @ti.func
+    def impact_response(self, v, n, vn, with_friction):
+        """``impact`` with friction on the impulse when ``with_friction`` (body-body contact, which
+        has no force-level friction, always asks for it)."""
         kr = self.restitution[None] * ti.cast(-vn > self.bounce_threshold[None], float)
         vt = v - vn * n
-        if self.impact_friction[None]:
+        if with_friction:
             t = vt.norm()
             if t > 0:
                 # Coulomb: the tangential impulse is at most mu times the normal one, dv_N = -(1 + kr) vn.

@@ -105,9 +105,9 @@ class Comparison(FrameJob):
 
         ``progress(frames_done, time)`` is called after each frame.
         """
-        from ..simulation import frame_steps
+        from ..simulation import frame_steps, step_count
 
-        total = max(int(round(duration / self.dt)), 1)
+        total = step_count(duration, self.dt)
         schedule = frame_steps(total, self.options.fps, self.dt)
         for index, target in enumerate(schedule):
             for tile in self.tiles:

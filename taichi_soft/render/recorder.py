@@ -136,7 +136,7 @@ class FrameRecorder(FrameJob):
 
 def frame_count(duration: float, dt: float, fps: float) -> int:
     """Frames ``Simulation.run`` visits for ``duration`` [s] at ``dt`` [s] and ``fps``."""
-    from ..simulation import frame_steps
+    from ..simulation import frame_steps, step_count
 
-    return len(frame_steps(max(int(round(duration / dt)), 1), fps, dt))
+    return len(frame_steps(step_count(duration, dt), fps, dt))
 
