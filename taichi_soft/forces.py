@@ -59,10 +59,11 @@ class ForceEvaluator:
 
     * ``scatter``: one pass over springs evaluates each spring once and adds its force to both
       ends' force sums with plain (non-atomic) adds; the particle pass reads and clears its sum.
-      Serial launches run the springs in one loop. Parallel launches split the body into slabs
-      along x at least one spring long, so a spring touches only its own slab and the next one:
-      the even slabs run in parallel, then the odd ones, and no two threads ever add to the
-      same particle. The fastest on the CPU (docs/benchmarks), the default of both launch modes.
+      Serial launches run the springs in one loop. Parallel launches run the slabs of
+      ``slabs.py`` (ranges of the model's own spring ids; no copy of the springs): the even
+      slabs in parallel, then the odd ones, so no two threads ever add to the same particle.
+      The fastest on the CPU (docs/benchmarks), the default of both launch modes; the only
+      strategy that needs no adjacency (``model.ensure_adjacency``).
     * ``per_spring``: one pass over springs stores each spring's force once, then each particle
       sums its springs' forces (signed by which end it is).
     * ``gather``: each particle evaluates all of its springs itself (every spring twice). One
@@ -70,8 +71,8 @@ class ForceEvaluator:
       write the new one to other buffers (ping-pong).
 
     ``parallel``: the step runs in parallel launches (scatter then uses its slab passes).
-    ``fused=False`` (implicit integrators, which assemble their own systems) allocates nothing
-    for the step kernels, only what ``compute`` needs.
+    ``fused=False`` (reference evaluators in tests and tools) allocates nothing for the step
+    kernels, only what ``compute`` needs.
     """
 
     def __init__(self, model, terrain, strategy: str = "per_spring", fused: bool = True, parallel: bool = False):
@@ -83,6 +84,8 @@ class ForceEvaluator:
         self.terrain = terrain
         self.strategy = strategy
         self.parallel = parallel
+        if not (fused and strategy == "scatter"):
+            model.ensure_adjacency()  # gathered sums, and compute(), walk each particle's springs
         m = max(model.n_springs, 1)
         self.spring_f = ti.Vector.field(3, float, m) if strategy == "per_spring" else None
         # (k [N/m], kd [N s/m]) of each spring (per_spring, scatter) or adjacency entry (gather).
@@ -91,23 +94,14 @@ class ForceEvaluator:
             self.kkd = ti.Vector.field(2, float, 2 * m if strategy == "gather" else m)
         self._seen = None  # group_k, group_kd as last copied into kkd
         if strategy == "scatter":
-            self._build_scatter(m)
-
-    def _build_scatter(self, m):
-        """Springs sorted by slab (ends, rest length, group in that order) and the force sums."""
-        model = self.model
-        self.f = ti.Vector.field(3, float, model.n_particles)  # per-particle force sums [N], kept at 0 between passes
-        self.s_ends = ti.Vector.field(2, ti.i32, m)
-        self.s_rest = ti.field(float, m)
-        self.s_group = ti.field(ti.i32, m)
-        order, starts = slab_order(model.x0_np, model.pairs_np)
-        self.n_slabs = len(starts) - 1
-        self.slab_start = ti.field(ti.i32, len(starts))
-        self.slab_start.from_numpy(starts.astype(np.int32))
-        if model.n_springs:
-            self.s_ends.from_numpy(model.pairs_np[order].astype(np.int32))
-            self.s_rest.from_numpy(model.rest_np[order].astype(model.real))
-            self.s_group.from_numpy(model.group_np[order].astype(np.int32))
+            self.f = ti.Vector.field(3, float, model.n_particles)  # per-particle force sums [N], kept at 0 between passes
+            first, ranges = model.slab_ranges()  # the model's own springs, split into slabs (slabs.py)
+            self.n_slabs = len(first) - 1
+            self.slab_first = ti.field(ti.i32, len(first))
+            self.slab_first.from_numpy(first)
+            self.slab_range = ti.Vector.field(2, ti.i32, max(len(ranges), 1))
+            if len(ranges):
+                self.slab_range.from_numpy(ranges)
 
     # -- parameter copies ----------------------------------------------------------------------
     def refresh(self):
@@ -123,13 +117,9 @@ class ForceEvaluator:
     @ti.kernel
     def _fill_kkd(self):
         m = self.model
-        if ti.static(self.strategy == "per_spring"):
+        if ti.static(self.strategy in ("per_spring", "scatter")):
             for s in range(m.n_springs):
                 g = m.spring_group[s]
-                self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])
-        elif ti.static(self.strategy == "scatter"):
-            for s in range(m.n_springs):
-                g = self.s_group[s]
                 self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])
         else:
             for e in range(2 * m.n_springs):
@@ -152,8 +142,9 @@ class ForceEvaluator:
                 ti.loop_config(block_dim=1)
                 for k in range((self.n_slabs - parity + 1) // 2):
                     slab = 2 * k + parity
-                    for s in range(self.slab_start[slab], self.slab_start[slab + 1]):
-                        self._scatter(x, v, s)
+                    for r in range(self.slab_first[slab], self.slab_first[slab + 1]):
+                        for s in range(self.slab_range[r][0], self.slab_range[r][1]):
+                            self._scatter(x, v, s)
         elif ti.static(self.strategy == "scatter"):
             for s in range(m.n_springs):
                 self._scatter(x, v, s)
@@ -161,9 +152,9 @@ class ForceEvaluator:
     @ti.func
     def _scatter(self, x: ti.template(), v: ti.template(), s):
         """Add spring s's force to both ends' sums (plain adds: see the class docstring)."""
-        ends = self.s_ends[s]
+        ends = self.model.spring_ends[s]
         kkd = self.kkd[s]
-        f = spring_pair_force(x, v, ends[0], ends[1], self.s_rest[s], kkd[0], kkd[1])
+        f = spring_pair_force(x, v, ends[0], ends[1], self.model.spring_rest[s], kkd[0], kkd[1])
         self.f[ends[0]] = self.f[ends[0]] + f
         self.f[ends[1]] = self.f[ends[1]] - f
 
@@ -202,7 +193,9 @@ class ForceEvaluator:
     def compute(self, x: ti.template(), v: ti.template(), dt, a: ti.template()):
         """a[i] = acceleration of every particle at state (x, v). ``dt`` [s] caps friction.
 
-        The general reference pass (group lookups, an acceleration buffer). Contains top-level
+        The general reference pass (group lookups, an acceleration buffer); an evaluator made
+        with ``fused=False`` or a gathering strategy has it (a fused scatter one has no
+        adjacency to gather over). Contains top-level
         loops: called from a kernel's top level they run in parallel, inside a serial loop serially.
         """
         m = self.model
@@ -216,27 +209,6 @@ class ForceEvaluator:
         else:
             for i in range(m.n_particles):
                 a[i] = self.particle_accel(x, v, i, gather_spring_force(m, x, v, i), dt)
-
-
-def slab_order(x0, pairs):
-    """Springs sorted into slabs along x for the parallel scatter: (order, slab starts).
-
-    Slab thickness is just over the longest spring's x extent (at the start positions ``x0``
-    [m]), so a spring's two ends lie in the same slab or in neighbouring ones; each spring goes
-    to its lower end's slab. Springs of slabs 0, 2, 4, ... then touch pairwise different
-    particles, and so do those of slabs 1, 3, 5, ... Any particle indexing works (no lattice).
-    """
-    if len(pairs) == 0:
-        return np.zeros(0, np.int64), np.zeros(2, np.int64)
-    xs = np.asarray(x0, np.float64)[:, 0]
-    a, b = pairs[:, 0], pairs[:, 1]
-    extent = float(np.abs(xs[a] - xs[b]).max())
-    thickness = extent * (1 + 1e-6) + 1e-9
-    slab = np.floor((xs - xs.min()) / thickness).astype(np.int64)
-    spring_slab = np.minimum(slab[a], slab[b])
-    order = np.argsort(spring_slab, kind="stable")
-    starts = np.searchsorted(spring_slab[order], np.arange(int(slab.max()) + 2))
-    return order, starts
 
 
 @ti.data_oriented

@@ -74,31 +74,36 @@ class FieldCounts:
 
 
 # Field entries of the model, the state and each integrator together, per force-strategy family
-# (forces.py: "scatter", the CPU default in both launch modes, keeps a slab-ordered copy of the
-# springs: ends, rest, group and (k, kd); "gather", the GPU default, keeps (k, kd) per adjacency
-# entry and ping-pong state buffers). Measured from the fields the code allocates at two sizes
-# in f32 and f64 (tests/test_memory.py checks the table against the allocation); the source files
-# are the truth. fast_mass_spring's Cholesky factor is counted separately ("cholesky").
-_MODEL = FieldCounts(2, 2, 3, 9)  # mass, inv_mass, adj_offset, adj_split | rest x2, ends, groups, adjacency
+# (forces.py: "scatter", the CPU default in both launch modes, reads the model's own springs
+# through slab ranges and needs no adjacency; "gather", the GPU default, builds the adjacency and
+# keeps (k, kd) per adjacency entry). Implicit solvers build the adjacency and no force-pass
+# buffers, whatever the family. Measured from the fields the code allocates at two sizes in f32
+# and f64 (tests/test_memory.py checks the table against the allocation); the source files are
+# the truth. fast_mass_spring's Cholesky factor is counted separately ("cholesky").
+_MODEL = FieldCounts(2, 0, 1, 3)  # mass, inv_mass | rest, ends x2, group
+_ADJACENCY = FieldCounts(0, 2, 2, 6)  # adj_offset, adj_split | per spring end: rest, other, group, code
+_STATE = FieldCounts(6, 0, 0, 0)  # x, v
+_SCATTER = _MODEL + _STATE + FieldCounts(3, 0, 2, 0)  # force sums | (k, kd)
+_GATHER = _MODEL + _ADJACENCY + _STATE + FieldCounts(0, 0, 4, 0)  # (k, kd) per spring end
+_RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
+_IMPLICIT_EULER = FieldCounts(72, 5, 18, 9)
+_FAST_MASS_SPRING = FieldCounts(64, 5, 9, 9)
 FIELDS = {
-    ("semi_implicit_euler", "scatter"): FieldCounts(11, 2, 6, 12),
-    ("explicit_euler", "scatter"): FieldCounts(11, 2, 6, 12),
-    ("midpoint", "scatter"): FieldCounts(29, 2, 6, 12),
-    ("rk4", "scatter"): FieldCounts(29, 2, 6, 12),
-    ("implicit_euler", "scatter"): FieldCounts(72, 5, 21, 9),
-    ("fast_mass_spring", "scatter"): FieldCounts(64, 5, 12, 9),
-    ("semi_implicit_euler", "gather"): FieldCounts(8, 2, 7, 9),
-    ("explicit_euler", "gather"): FieldCounts(8, 2, 7, 9),
-    ("midpoint", "gather"): FieldCounts(26, 2, 7, 9),
-    ("rk4", "gather"): FieldCounts(26, 2, 7, 9),
-    ("implicit_euler", "gather"): FieldCounts(72, 5, 18, 9),
-    ("fast_mass_spring", "gather"): FieldCounts(64, 5, 9, 9),
+    ("semi_implicit_euler", "scatter"): _SCATTER,
+    ("explicit_euler", "scatter"): _SCATTER,
+    ("midpoint", "scatter"): _SCATTER + _RK_STAGES,
+    ("rk4", "scatter"): _SCATTER + _RK_STAGES,
+    ("implicit_euler", "scatter"): _IMPLICIT_EULER,
+    ("fast_mass_spring", "scatter"): _FAST_MASS_SPRING,
+    ("semi_implicit_euler", "gather"): _GATHER,
+    ("explicit_euler", "gather"): _GATHER,
+    ("midpoint", "gather"): _GATHER + _RK_STAGES,
+    ("rk4", "gather"): _GATHER + _RK_STAGES,
+    ("implicit_euler", "gather"): _IMPLICIT_EULER,
+    ("fast_mass_spring", "gather"): _FAST_MASS_SPRING,
     "cholesky": FieldCounts(3, 2, 0, 0),  # linalg.SkylineCholesky: tmp, start, offset (+ the envelope)
-    "state": FieldCounts(6, 0, 0, 0),  # x, v (included in the totals above)
+    "state": _STATE,  # x, v (included in the totals above)
 }
-# Host bytes per spring while the scatter strategy sorts the springs into slabs (downloads of the
-# ends, rest lengths and groups, the sort order and the reordered copies): a transient at start-up.
-SCATTER_TRANSIENT_SPRING_BYTES = 64
 EXPLICIT = ("semi_implicit_euler", "explicit_euler", "midpoint", "rk4")
 IMPLICIT = ("implicit_euler", "fast_mass_spring")
 HOST_PARTICLE_BYTES = 56  # model.x0_np, v0_np (float64 vec3) and mass_np (float64)
@@ -195,10 +200,7 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
         host += 2 * frames * n_p * 2 * 3 * real  # the frames kept, and their stacked copy when written
     device = 0
     if arch == "cpu":
-        transient = max(_envelope_transient(scene_data, name, n_p, n_s, real) for name in names)
-        if family == "scatter":
-            transient = max(transient, SCATTER_TRANSIENT_SPRING_BYTES * n_s)
-        host += fields + transient
+        host += fields + max(_envelope_transient(scene_data, name, n_p, n_s, real) for name in names)
     else:
         host += GPU_HOST_EXTRA_BYTES
         device = GPU_DEVICE_BASE_BYTES + fields

@@ -1,8 +1,9 @@
 """Builder -> Model -> State: the static description of the bodies and their changing state.
 
 ``ModelBuilder`` collects bodies on the numpy side; ``finalize()`` makes a ``Model`` of Taichi
-fields, writing the lattice springs and their adjacency on the device (no host copies of the
-per-spring arrays); ``model.state()`` allocates a ``State`` (positions and velocities).
+fields, writing the lattice springs on the device (no host copies of the per-spring arrays);
+their adjacency is built, also on the device, only for the integrators that gather over it
+(``ensure_adjacency``); ``model.state()`` allocates a ``State`` (positions and velocities).
 Everything a user may tune while a run is going (stiffness, damping, gravity) lives in fields,
 so changing it takes effect on the next step without recompiling a kernel.
 
@@ -22,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from . import lattice
+from . import lattice, slabs
 from .lattice import SPRING_KINDS
 
 N_KINDS = len(SPRING_KINDS)  # spring groups per body
@@ -154,12 +155,12 @@ class ModelBuilder:
             s0 += sum(counts)
         model = Model.__new__(Model)
         model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies)
+        model._lattice = True
         for b, info in enumerate(bodies):
             spec = info.spec
             lattice.fill_springs(model.spring_ends, model.spring_rest, model.spring_group, spec.n,
                                  info.particles.start, info.springs.start, spring_group(b, 0),
                                  spec.size / (spec.n - 1))
-        model._build_adjacency()
         return model
 
 
@@ -173,14 +174,17 @@ class Model:
       spring_rest         [n_springs]              rest length [m]
       spring_group        [n_springs]              ``spring_group(body, kind)`` (stretch 0, shear 1, bend 2)
       group_k, group_kd   [3 n_bodies]             stiffness [N/m], damper coefficient [N s/m]
+      gravity             0-d vec3                 [m/s^2]
+    and, once ``ensure_adjacency()`` has run (gathering force strategies, implicit solvers):
       adj_offset          [n_particles + 1]        CSR row starts of each particle's springs
       adj_other, adj_rest, adj_group [2 n_springs] the other end, rest length, group per entry
       adj_spring          [2 n_springs]            ``end_a_code(s)`` if the particle is end a, else ``end_b_code(s)``
       adj_split           [n_particles]            where a particle's "end b" entries begin (its
                                                    "end a" entries come first: no sign branch)
-      gravity             0-d vec3                 [m/s^2]
     The adjacency lets force kernels gather over a particle's springs without atomics. Each
     particle's entries are its "end a" springs by increasing id, then its "end b" ones likewise.
+    It costs 2 ints per particle and 2 reals + 6 ints per spring, more than the springs
+    themselves, so a run whose kernels do not read it (the scatter strategy) never allocates it.
 
     Host copies: ``x0_np``, ``v0_np`` (initial state, float64 [n_particles, 3]) and ``mass_np``
     are kept (resets and diagnostics read them); ``pairs_np``, ``rest_np`` and ``group_np`` are
@@ -199,7 +203,6 @@ class Model:
             self.spring_ends.from_numpy(pairs)
             self.spring_rest.from_numpy(np.asarray(rest, dtype=self.real))
             self.spring_group.from_numpy(group)
-        self._build_adjacency()
 
     def _setup(self, x0, v0, mass, n_springs, kind_counts, group_k, group_kd, gravity, bodies):
         """Allocate every field and upload the per-particle and per-group data."""
@@ -212,6 +215,7 @@ class Model:
         self.v0_np = np.asarray(v0, dtype=np.float64)
         self.mass_np = np.asarray(mass, dtype=np.float64)
         self.real = np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
+        self._lattice = False  # springs in lattice order (ModelBuilder): slab ranges by arithmetic
 
         n, m = self.n_particles, max(self.n_springs, 1)
         self.mass = ti.field(float, n)
@@ -221,12 +225,8 @@ class Model:
         self.spring_group = ti.field(ti.i32, m)
         self.group_k = ti.field(float, max(self.n_groups, 1))
         self.group_kd = ti.field(float, max(self.n_groups, 1))
-        self.adj_offset = ti.field(ti.i32, n + 1)
-        self.adj_other = ti.field(ti.i32, 2 * m)
-        self.adj_rest = ti.field(float, 2 * m)
-        self.adj_group = ti.field(ti.i32, 2 * m)
-        self.adj_spring = ti.field(ti.i32, 2 * m)
-        self.adj_split = ti.field(ti.i32, n)
+        self.adj_offset = self.adj_other = self.adj_rest = self.adj_group = self.adj_spring = None
+        self.adj_split = None  # allocated by ensure_adjacency
         self.gravity = ti.Vector.field(3, float, ())
 
         # Kernel arguments in the run's precision: backends without f64 (Vulkan, Metal) take them.
@@ -247,6 +247,28 @@ class Model:
         for g in range(count):
             self.group_k[g] = ti.cast(k[g], float)
             self.group_kd[g] = ti.cast(kd[g], float)
+
+    def ensure_adjacency(self):
+        """Allocate and build the adjacency fields (class docstring) unless already built.
+
+        Call it before compiling a kernel that reads ``adj_*``: Taichi binds fields at compile time.
+        """
+        if self.adj_offset is not None:
+            return
+        n, m = self.n_particles, max(self.n_springs, 1)
+        self.adj_offset = ti.field(ti.i32, n + 1)
+        self.adj_other = ti.field(ti.i32, 2 * m)
+        self.adj_rest = ti.field(float, 2 * m)
+        self.adj_group = ti.field(ti.i32, 2 * m)
+        self.adj_spring = ti.field(ti.i32, 2 * m)
+        self.adj_split = ti.field(ti.i32, n)
+        self._build_adjacency()
+
+    def slab_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """The springs split into slabs for the parallel scatter: (first, ranges), see ``slabs``."""
+        if self._lattice:
+            return slabs.lattice_ranges([(info.spec.n, info.springs.start) for info in self.bodies])
+        return slabs.graph_ranges(self.x0_np, self.pairs_np)
 
     @ti.func
     def _adjacency_key(self, code):

@@ -5,7 +5,9 @@ import pytest
 import taichi as ti
 
 from taichi_soft import runtime
-from taichi_soft.forces import ForceEvaluator, slab_order
+from taichi_soft.forces import ForceEvaluator
+from taichi_soft.model import Model
+from taichi_soft.slabs import graph_ranges
 from taichi_soft.integrators import REGISTRY, make_integrator
 
 from physics_helpers import build, simulate, stretched
@@ -81,20 +83,65 @@ def test_fused_steps_match_the_reference_force_pass(mode, forces, names):
             np.testing.assert_allclose(ve, v, rtol=0, atol=1e-9, err_msg=f"{name} {mode} {forces} v after {steps}")
 
 
-def test_scatter_slabs_of_one_parity_share_no_particle():
-    """The parallel scatter's race freedom: within the even (odd) slabs no particle is an end of
-    two springs of different slabs, on a rotated cube (springs at every angle)."""
-    model, _ = build(n=7, size=2.0, rotation_axis=(1.0, 2.0, 0.5), rotation_degrees=37.0)
-    order, starts = slab_order(model.x0_np, model.pairs_np)
-    assert len(starts) - 1 >= 3 and starts[-1] == model.n_springs
-    assert np.array_equal(np.sort(order), np.arange(model.n_springs))
-    pairs = model.pairs_np[order]
+def _check_slabs(pairs, first, ranges, n_particles):
+    """Every spring in exactly one slab; within the even (odd) slabs no particle is an end of
+    springs of two different slabs."""
+    ids = np.concatenate([np.arange(s, e) for s, e in ranges]) if len(ranges) else np.zeros(0, int)
+    assert np.array_equal(np.sort(ids), np.arange(len(pairs)))
     for parity in (0, 1):
-        owner = np.full(model.n_particles, -1)
-        for slab in range(parity, len(starts) - 1, 2):
-            ends = np.unique(pairs[starts[slab]:starts[slab + 1]])
+        owner = np.full(n_particles, -1)
+        for slab in range(parity, len(first) - 1, 2):
+            ends = np.unique(np.concatenate([pairs[s:e].ravel() for s, e in ranges[first[slab]:first[slab + 1]]] or
+                                            [np.zeros(0, int)]))
             assert (owner[ends] == -1).all(), f"slab {slab} shares a particle with slab {owner[ends].max()}"
             owner[ends] = slab
+    return len(first) - 1
+
+
+def test_scatter_slabs_of_one_parity_share_no_particle():
+    """The parallel scatter's race freedom, on the springs in the model's own order: lattice
+    bodies of several sizes (rotated: springs at every angle) in one model, and a random graph."""
+    from taichi_soft.model import BodySpec, ModelBuilder
+
+    builder = ModelBuilder()
+    for k, n in enumerate((2, 3, 7, 8)):
+        builder.add_cube(BodySpec(n=n, size=2.0, center=(5.0 * k, 0.0, 0.0), rotation_axis=(1.0, 2.0, 0.5),
+                                  rotation_degrees=37.0 * k))
+    model = builder.finalize()
+    first, ranges = model.slab_ranges()
+    assert _check_slabs(model.pairs_np, first, ranges, model.n_particles) == 4  # ceil(8 / 2)
+    assert len(ranges) <= 16 * 4 * 4  # one range per offset, slab and body: nothing per spring
+
+    rng = np.random.default_rng(5)
+    x0 = rng.random((40, 3)) * [10.0, 1.0, 1.0]
+    near = [(a, b) for a in range(40) for b in range(40) if a != b and abs(x0[a, 0] - x0[b, 0]) < 1.5]
+    pairs = np.array(near)[rng.random(len(near)) < 0.3]
+    first, ranges = graph_ranges(x0, pairs)
+    assert _check_slabs(pairs, first, ranges, 40) >= 4
+
+
+def test_scatter_of_any_graph_matches_the_reference():
+    """A model made from host arrays (no lattice) takes parallel scatter steps equal to the
+    reference force pass."""
+    rng = np.random.default_rng(2)
+    n = 30
+    x0 = rng.random((n, 3)) * [6.0, 1.0, 1.0]
+    pairs = np.array([(a, b) for a in range(n) for b in range(a + 1, n) if np.linalg.norm(x0[a] - x0[b]) < 1.0])
+    rest = np.linalg.norm(x0[pairs[:, 0]] - x0[pairs[:, 1]], axis=1) * 0.9
+    model = Model(x0=x0, v0=np.zeros_like(x0), mass=np.ones(n), pairs=pairs, rest=rest, group=np.zeros(len(pairs)),
+                  group_k=[500.0], group_kd=[2.0], gravity=(0.0, -9.8, 0.0), bodies=[])
+    from taichi_soft.terrain import make_terrain
+
+    terrain = make_terrain("none", n, {})
+    integ = make_integrator("semi_implicit_euler", model, terrain, {"mode": "parallel", "forces": "scatter"})
+    assert integ.forces.n_slabs >= 4
+    state = model.state()
+    x, v = x0.copy(), np.zeros_like(x0)
+    for _ in range(3):
+        x, v = reference_step(model, terrain, "semi_implicit_euler", x, v, 1e-3)
+    assert integ.advance(state, 1e-3, 3) == 3
+    np.testing.assert_allclose(state.numpy()[0], x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(state.numpy()[1], v, rtol=0, atol=1e-9)
 
 
 def test_stiffness_change_reaches_the_fused_kernels():

@@ -75,6 +75,8 @@ def test_builder_matches_first_principles_and_previous_builder():
         builder.add_cube(BodySpec(n=n, size=0.5 * n, center=(3.0 * n, 1.0, -2.0), rotation_axis=(1.0, 2.0, 0.5),
                                   rotation_degrees=17.0 * n, initial_stretch=(1.2, 0.9, 1.0)))
     model = builder.finalize()
+    assert model.adj_offset is None  # built only for the integrators that read it
+    model.ensure_adjacency()
     pairs, rest, group = model.pairs_np, model.rest_np, model.group_np
     ref_pairs, ref_rest, ref_group = [], [], []
     for b, (n, info) in enumerate(zip(_SIZES, model.bodies)):
@@ -110,6 +112,7 @@ def test_adjacency_of_any_graph():
     x0 = rng.standard_normal((n_particles, 3))
     model = Model(x0=x0, v0=np.zeros_like(x0), mass=np.ones(n_particles), pairs=pairs, rest=rest, group=group,
                   group_k=np.ones(6), group_kd=np.ones(6), gravity=(0.0, 0.0, 0.0), bodies=[])
+    model.ensure_adjacency()
     for name, want in _previous_adjacency(pairs, rest, group, n_particles).items():
         np.testing.assert_array_equal(getattr(model, name).to_numpy(), want, err_msg=name)
 

@@ -40,7 +40,7 @@ def measure(integrator: str, n: int, mode: str = "auto", chunk: int | None = Non
     med = statistics.median(times)
     return {
         "integrator": integrator, "n": n, "particles": n**3, "springs": sim.model.n_springs, "mode": "serial" if sim.integrator._serial() else "parallel",
-        "forces": sim.integrator.forces.strategy,
+        "forces": sim.integrator.forces.strategy if sim.integrator.forces else "-",
         "chunk": chunk, "repeats": len(times), "median_s": med, "steps_per_s": chunk / med,
         "ns_per_particle_step": med / chunk / n**3 * 1e9, "realtime_factor": chunk * sim.dt / med,
         "diverged": sim.diverged,

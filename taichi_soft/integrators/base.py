@@ -64,8 +64,13 @@ class Integrator:
         # Body-body contact (collision.BodyContacts) or None; read with ti.static at first compile,
         # so it must be set before the first step.
         self.contacts = None
-        self.forces = ForceEvaluator(model, terrain, self._force_strategy(), fused=not self.implicit,
-                                     parallel=not self._serial())
+        # Explicit methods step through the fused force passes. Implicit solvers assemble their
+        # own objective over the adjacency and allocate no force-pass buffers.
+        self.forces = None
+        if self.implicit:
+            model.ensure_adjacency()
+        else:
+            self.forces = ForceEvaluator(model, terrain, self._force_strategy(), parallel=not self._serial())
         self.ping_pong = False  # subclasses: True if _step_into replaces _step_body
         self._xo = self._vo = None  # the second state buffers of ping-pong steps
 
@@ -92,7 +97,8 @@ class Integrator:
         if n_steps <= 0 or self.diverged:
             return 0
         start = self._step_counter
-        self.forces.refresh()
+        if self.forces is not None:
+            self.forces.refresh()
         x, v = state.x, state.v
         if self.ping_pong:
             if self._xo is None:
