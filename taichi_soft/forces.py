@@ -48,6 +48,9 @@ def gather_spring_force(model: ti.template(), x: ti.template(), v: ti.template()
 
 
 STRATEGIES = ("scatter", "per_spring", "gather")
+# Iterations between two slabs of the parallel scatter's loop: at least the largest task Taichi
+# 1.7's CPU backend makes (1024, ``cpu_block_dim_adaptive``), so no task holds two slabs' work.
+SLAB_STRIDE = 1024
 
 
 @ti.data_oriented
@@ -138,13 +141,17 @@ class ForceEvaluator:
                 self.spring_f[s] = spring_pair_force(x, v, ends[0], ends[1], m.spring_rest[s], kkd[0], kkd[1])
         elif ti.static(self.strategy == "scatter" and self.parallel):
             for parity in ti.static(range(2)):
-                # one slab per task: slabs of one parity share no particle
-                ti.loop_config(block_dim=1)
-                for k in range((self.n_slabs - parity + 1) // 2):
-                    slab = 2 * k + parity
-                    for r in range(self.slab_first[slab], self.slab_first[slab + 1]):
-                        for s in range(self.slab_range[r][0], self.slab_range[r][1]):
-                            self._scatter(x, v, s)
+                # Slabs of one parity share no particle, so each may run on its own thread. Taichi
+                # 1.7's CPU backend gives every task of a parallel loop at least 512 iterations
+                # (``cpu_block_dim_adaptive``, which overrides ``loop_config(block_dim=...)``), so a
+                # loop over the few slabs would run on one thread: slab k is iteration
+                # k * SLAB_STRIDE of a longer loop whose other iterations do nothing.
+                for t in range((self.n_slabs - parity + 1) // 2 * SLAB_STRIDE):
+                    if t % SLAB_STRIDE == 0:
+                        slab = 2 * (t // SLAB_STRIDE) + parity
+                        for r in range(self.slab_first[slab], self.slab_first[slab + 1]):
+                            for s in range(self.slab_range[r][0], self.slab_range[r][1]):
+                                self._scatter(x, v, s)
         elif ti.static(self.strategy == "scatter"):
             for s in range(m.n_springs):
                 self._scatter(x, v, s)
