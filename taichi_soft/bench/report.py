@@ -236,7 +236,7 @@ def speed_configs() -> list[tuple[str, str]]:
 
 def run_speed_worker(quick: bool) -> dict:
     """Inside one (arch, precision) process: engine rows, numpy/Warp comparison, bandwidth, profile."""
-    from .speed import bytes_per_step, kernel_profile, measured_bandwidth
+    from .speed import bytes_per_step, kernel_profile, measured_bandwidth, thread_overlap
 
     from .. import runtime
 
@@ -258,6 +258,7 @@ def run_speed_worker(quick: bool) -> dict:
                 continue  # implicit methods at 80^3 take minutes per repeat here; measured up to 40^3
             rows.append(measure_speed(name, n, repeats=2 if quick else 5))
     bw = measured_bandwidth(32 if quick else 256)
+    overlap = thread_overlap((1.0,) if quick else (0.3, 1.0, 3.0, 10.0)) if cfg["arch"] == "cpu" else []
     real_bytes = 8 if cfg["precision"] == "f64" else 4
     bound = []
     for r in rows:
@@ -266,7 +267,8 @@ def run_speed_worker(quick: bool) -> dict:
         b = bytes_per_step(r["particles"], r["springs"], real_bytes, r["forces"])
         bound.append({"n": r["n"], "bytes_per_step": b, "bound_steps_per_s": bw / b,
                       "measured_steps_per_s": r["steps_per_s"], "fraction_of_bound": r["steps_per_s"] * b / bw})
-    return {"config": cfg, "rows": rows, "bandwidth_bytes_per_s": bw, "bound": bound, "profile": profile}
+    return {"config": cfg, "rows": rows, "bandwidth_bytes_per_s": bw, "bound": bound, "profile": profile,
+            "thread_overlap": overlap}
 
 
 def run_speed(quick: bool, progress=None) -> dict:
@@ -433,6 +435,14 @@ def speed_markdown(result: dict) -> str:
             out.append(f"| {b['n']} | {b['bytes_per_step']:,} | {b['bound_steps_per_s']:,.0f} | "
                        f"{b['measured_steps_per_s']:,.0f} | {b['fraction_of_bound']:.2f} |")
         out.append("")
+        if res.get("thread_overlap"):
+            out += ["Thread overlap on this machine: a parallel loop of two equal tasks, each alone taking the time "
+                    "in the first column; overlap 1 = both threads ran them at once, 0 = one after the other (the "
+                    "second thread joined too late). The step kernels' 2-thread scaling cannot beat this for loops "
+                    "of their length.", "", "| one task [ms] | two tasks [ms] | overlap |", "|---:|---:|---:|"]
+            for o in res["thread_overlap"]:
+                out.append(f"| {o['task_ms']:.2f} | {o['two_tasks_ms']:.2f} | {o['overlap']:.2f} |")
+            out.append("")
         for p in res.get("profile", []):
             out += [f"Kernel profile, {p['integrator']}, n = {p['n']} (parallel launch; task k = k-th loop of the step):", "",
                     "| task | ms / step | share |", "|---|---:|---:|"]

@@ -177,6 +177,50 @@ def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: 
     return particles + springs
 
 
+# -- how well two threads overlap on this machine ---------------------------------------------------
+def thread_overlap(task_ms=(0.3, 1.0, 3.0, 10.0), repeats=21) -> list[dict]:
+    """Overlap in time of the two tasks of one parallel loop, per task length (CPU backend, >= 2 threads).
+
+    A loop whose two tasks each spin for ``task_ms`` runs in 1x the time of one task when both
+    threads start at once, 2x when the second thread joins only after the first has done both.
+    ``overlap`` = 2 - median(two tasks) / median(one task): 1 perfect, 0 none. The thread scaling of
+    the step kernels cannot beat what this allows for loops of their length: on virtual machines
+    the second vCPU may wake up late (measured on the 2-core development VM: docs/benchmarks).
+    """
+    stride = 1024  # one real task per 1024 iterations (Taichi's CPU tasks are 512-1024 iterations)
+    sink = ti.field(ti.f32, 2)
+    arg = ti.field(ti.i32, 2)  # tasks, spin count (fields: this module's annotations are strings)
+
+    @ti.kernel
+    def spin():
+        for t in range(arg[0] * stride):
+            if t % stride == 0:
+                acc = 0.0
+                for k in range(arg[1]):
+                    acc = ti.sin(acc + k)
+                sink[t // stride] = acc
+
+    def median_s(tasks, count):
+        arg[0], arg[1] = tasks, count
+        spin()
+        ti.sync()
+        ts = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            spin()
+            ti.sync()
+            ts.append(time.perf_counter() - t0)
+        return statistics.median(ts)
+
+    per_k = median_s(1, 100000) / 100000  # seconds per spin iteration
+    rows = []
+    for ms in task_ms:
+        count = max(1, int(ms * 1e-3 / per_k))
+        one, two = median_s(1, count), median_s(2, count)
+        rows.append({"task_ms": one * 1e3, "two_tasks_ms": two * 1e3, "overlap": 2.0 - two / one})
+    return rows
+
+
 # -- kernel profile ------------------------------------------------------------------------------------
 def kernel_profile(integrator: str, n: int, steps: int = 50) -> list[dict]:
     """Per-task times of one integrator's parallel step (needs ``kernel_profiler=True`` at init).
