@@ -145,15 +145,20 @@ def measured_bandwidth(mbytes: int = 256, repeats: int = 5) -> float:
         for i in src:
             dst[i] = src[i]
 
-    copy()
+    return 2 * n * 4 / median_kernel_seconds(copy, repeats)
+
+
+def median_kernel_seconds(kernel, repeats: int) -> float:
+    """Median wall seconds of ``kernel()`` after one warm-up call (compiles), synced each time."""
+    kernel()
     ti.sync()
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        copy()
+        kernel()
         ti.sync()
         times.append(time.perf_counter() - t0)
-    return 2 * n * 4 / statistics.median(times)
+    return statistics.median(times)
 
 
 def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: str) -> int:
@@ -202,15 +207,7 @@ def thread_overlap(task_ms=(0.3, 1.0, 3.0, 10.0), repeats=21) -> list[dict]:
 
     def median_s(tasks, count):
         arg[0], arg[1] = tasks, count
-        spin()
-        ti.sync()
-        ts = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            spin()
-            ti.sync()
-            ts.append(time.perf_counter() - t0)
-        return statistics.median(ts)
+        return median_kernel_seconds(spin, repeats)
 
     per_k = median_s(1, 100000) / 100000  # seconds per spin iteration
     rows = []
