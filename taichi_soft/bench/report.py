@@ -484,6 +484,8 @@ def equal_settings_markdown(rows: list[dict], load) -> list[str]:
            "time (all its threads): on a loaded machine, where other processes take the cores, it is the steadier "
            "measure of the code itself (for 2 threads it counts both). `max abs diff`: final positions after 20 steps against "
            "the group's first row (f64, fast math off; at 1 thread for the scaling rows) [m]. "
+           "`thread overlap` (2-thread rows): after each of their repeats, two equal 2-ms tasks of one parallel "
+           "loop were timed: 1 = the machine ran both threads at once, 0 = one after the other (median). "
            f"Load average (1, 5, 15 min) when the study ended: {', '.join(f'{x:.2f}' for x in load)}.", "",
            "| group | code | arch | precision | fast math | threads | launch, forces | steps/s | ns / spring | spread | steps / CPU s | max abs diff [m] |",
            "|---|---|---|---|---|---:|---|---:|---:|---:|---:|---:|"]
@@ -505,6 +507,8 @@ def equal_settings_markdown(rows: list[dict], load) -> list[str]:
             continue
         ratio = a["steps_per_s"] / b["steps_per_s"]
         per_cpu = a["steps_per_cpu_s"] / b["steps_per_cpu_s"] if a.get("threads") is None else None
+        if "thread_overlap" in a:  # what the machine allowed while the 2-thread repeats ran
+            label += f" (thread overlap {a['thread_overlap']:.2f})"
         ratios.append(f"| {label} | {ratio:.2f} | {_fmt(per_cpu, '.2f')} | {'-' if goal is None else f'>= {goal:g}'} |")
     for prec in ("f64", "f32"):
         for n in (10, 40):

@@ -192,18 +192,7 @@ def thread_overlap(task_ms=(0.3, 1.0, 3.0, 10.0), repeats=21) -> list[dict]:
     the step kernels cannot beat what this allows for loops of their length: on virtual machines
     the second vCPU may wake up late (measured on the 2-core development VM: docs/benchmarks).
     """
-    stride = 1024  # one real task per 1024 iterations (Taichi's CPU tasks are 512-1024 iterations)
-    sink = ti.field(ti.f32, 2)
-    arg = ti.field(ti.i32, 2)  # tasks, spin count (fields: this module's annotations are strings)
-
-    @ti.kernel
-    def spin():
-        for t in range(arg[0] * stride):
-            if t % stride == 0:
-                acc = 0.0
-                for k in range(arg[1]):
-                    acc = ti.sin(acc + k)
-                sink[t // stride] = acc
+    spin, arg = _overlap_kernel()
 
     def median_s(tasks, count):
         arg[0], arg[1] = tasks, count
@@ -216,6 +205,29 @@ def thread_overlap(task_ms=(0.3, 1.0, 3.0, 10.0), repeats=21) -> list[dict]:
         one, two = median_s(1, count), median_s(2, count)
         rows.append({"task_ms": one * 1e3, "two_tasks_ms": two * 1e3, "overlap": 2.0 - two / one})
     return rows
+
+
+_OVERLAP = {}  # this process's overlap kernel and its argument field (compiled once)
+
+
+def _overlap_kernel():
+    """(kernel, arg): the kernel runs arg[0] tasks of one parallel loop, each spinning arg[1] times."""
+    if not _OVERLAP:
+        stride = 1024  # one real task per 1024 iterations (Taichi's CPU tasks are 512-1024 iterations)
+        sink = ti.field(ti.f32, 2)
+        arg = ti.field(ti.i32, 2)  # tasks, spin count (fields: this module's annotations are strings)
+
+        @ti.kernel
+        def spin():
+            for t in range(arg[0] * stride):
+                if t % stride == 0:
+                    acc = 0.0
+                    for k in range(arg[1]):
+                        acc = ti.sin(acc + k)
+                    sink[t // stride] = acc
+
+        _OVERLAP.update(kernel=spin, arg=arg, sink=sink)
+    return _OVERLAP["kernel"], _OVERLAP["arg"]
 
 
 # -- kernel profile ------------------------------------------------------------------------------------
@@ -255,6 +267,7 @@ def kernel_profile(integrator: str, n: int, steps: int = 50) -> list[dict]:
 # configuration alike and the ratios come from one run.
 REFERENCE_SCENE = ["terrain.kind=none", "body.0.initial_stretch=[1.05, 0.97, 1.0]"]
 REPEAT_SECONDS = 0.25  # work per timed repeat
+OVERLAP_TASK_MS = 2.0  # task length of the overlap probe taken beside multi-threaded repeats
 
 
 def quick_specs() -> list[dict]:
@@ -385,6 +398,9 @@ def _worker_main():
         if cmd[0] == "run":
             wall, used = st.timed(chunk, cpu=True)
             print(json.dumps({"s": wall, "cpu_s": used}), file=out, flush=True)
+        elif cmd[0] == "overlap":  # overlap MS: thread_overlap of two MS-millisecond tasks, now
+            print(json.dumps({"overlap": thread_overlap((float(cmd[1]),), repeats=5)[0]["overlap"]}), file=out,
+                  flush=True)
         elif cmd[0] == "state":  # state STEPS PATH: the positions after STEPS steps from the start
             st.reset()
             st.advance(int(cmd[1]))
@@ -457,11 +473,16 @@ def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, pr
             live = [w for w in workers if w is not None and "error" not in w.info]
             times = {id(w): [] for w in live}
             cpu = {id(w): [] for w in live}
+            overlap = {id(w): [] for w in live}
             for r in range(rounds):
                 for w in live[r % max(len(live), 1):] + live[:r % max(len(live), 1)]:
                     answer = w.ask("run")
                     times[id(w)].append(answer["s"])
                     cpu[id(w)].append(answer["cpu_s"])
+                    if _multithreaded(w.spec):
+                        # Did the machine give this worker its threads at the same time, just now?
+                        # Loops of about a step's pass, 1-2 ms at n = 40 (thread_overlap).
+                        overlap[id(w)].append(w.ask(f"overlap {OVERLAP_TASK_MS}")["overlap"])
             finals = {}
             with tempfile.TemporaryDirectory() as tmp:
                 for k, w in enumerate(live):
@@ -485,6 +506,8 @@ def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, pr
                                steps_per_cpu_s=chunk / max(statistics.median(cpu[id(w)]), 1e-9),
                                spread=(max(ts) - min(ts)) / med,
                                max_abs_diff=float(np.abs(finals[id(w)] - ref).max()))
+                    if overlap[id(w)]:
+                        row["thread_overlap"] = statistics.median(overlap[id(w)])
                 rows.append(row)
         finally:
             for w in workers:
@@ -493,6 +516,11 @@ def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, pr
         if progress:
             progress(gi + 1, len(groups), f"equal settings {group}")
     return rows
+
+
+def _multithreaded(spec: dict) -> bool:
+    """A worker whose steps run on several CPU threads (the thread-scaling rows at 2 threads)."""
+    return spec["kind"] == "engine" and spec["arch"] == "cpu" and (spec.get("threads") or 0) > 1
 
 
 def find_row(rows, **key):
