@@ -85,6 +85,7 @@ _ADJACENCY = FieldCounts(0, 2, 2, 6)  # adj_offset, adj_split | per spring end: 
 _STATE = FieldCounts(6, 0, 0, 0)  # x, v
 _SCATTER = _MODEL + _STATE + FieldCounts(3, 0, 2, 0)  # force sums | (k, kd)
 _GATHER = _MODEL + _ADJACENCY + _STATE + FieldCounts(0, 0, 4, 0)  # (k, kd) per spring end
+_PING_PONG = FieldCounts(6, 0, 0, 0)  # one-stage methods with gathered forces: second x, v
 _RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
 _IMPLICIT_EULER = FieldCounts(72, 5, 18, 9)
 _FAST_MASS_SPRING = FieldCounts(64, 5, 9, 9)
@@ -95,8 +96,8 @@ FIELDS = {
     ("rk4", "scatter"): _SCATTER + _RK_STAGES,
     ("implicit_euler", "scatter"): _IMPLICIT_EULER,
     ("fast_mass_spring", "scatter"): _FAST_MASS_SPRING,
-    ("semi_implicit_euler", "gather"): _GATHER,
-    ("explicit_euler", "gather"): _GATHER,
+    ("semi_implicit_euler", "gather"): _GATHER + _PING_PONG,
+    ("explicit_euler", "gather"): _GATHER + _PING_PONG,
     ("midpoint", "gather"): _GATHER + _RK_STAGES,
     ("rk4", "gather"): _GATHER + _RK_STAGES,
     ("implicit_euler", "gather"): _IMPLICIT_EULER,

@@ -51,19 +51,21 @@ def test_field_table_matches_allocated_fields():
 
     from physics_helpers import build
 
-    for name, mode in [(name, "auto") for name in names()] + [("semi_implicit_euler", "parallel")]:
+    cases = [(name, "auto", "auto") for name in names()] + [("semi_implicit_euler", "parallel", "auto")]
+    cases += [(name, "parallel", "gather") for name in ("semi_implicit_euler", "rk4")]  # the GPU default
+    for name, mode, forces in cases:
         # a model per integrator: what one allocates on the model (the adjacency) must not count for the next
         model, terrain = build(n=8, terrain="plane")
         n_p, n_s = model.n_particles, model.n_springs
         assert envelope_size(8) == SkylineCholesky.envelope_size(n_p, model.pairs_np)
         common = [model, model.state(), terrain, Diagnostics(model, terrain)]
-        fields = _fields(common + [make_integrator(name, model, terrain, {"mode": mode})])
+        fields = _fields(common + [make_integrator(name, model, terrain, {"mode": mode, "forces": forces})])
         scaling = [f for f in fields if f.shape and f.shape[0] >= min(n_p, n_s)]
         fixed = sum(_field_bytes(f) for f in fields if f not in scaling)
-        sets = ["body.0.n=8", f"solver.mode={mode}"]
+        sets = ["body.0.n=8", f"solver.mode={mode}", f"solver.forces={forces}"]
         est = memory.estimate(load_scene("plane", sets).data, name, "f64", "cpu")
         assert fixed < 2048, name
-        assert abs(sum(_field_bytes(f) for f in scaling) - est["fields"]) <= 64, (name, mode)  # n + 1 sized offsets
+        assert abs(sum(_field_bytes(f) for f in scaling) - est["fields"]) <= 64, (name, mode, forces)  # n + 1 sized offsets
 
 
 def test_estimate_agrees_with_measured_peak():

@@ -75,7 +75,7 @@ class Integrator:
             model.ensure_adjacency()
         else:
             self.forces = ForceEvaluator(model, terrain, self._force_strategy(), parallel=not self._serial())
-        self.ping_pong = False  # subclasses: True if _step_into replaces _step_body
+        self.ping_pong = False  # True (``_use_ping_pong``) if _step_into replaces _step_body
         self._xo = self._vo = None  # the second state buffers of ping-pong steps
 
     @classmethod
@@ -105,9 +105,6 @@ class Integrator:
             self.forces.refresh()
         x, v = state.x, state.v
         if self.ping_pong:
-            if self._xo is None:
-                self._xo = ti.Vector.field(3, float, self.n)
-                self._vo = ti.Vector.field(3, float, self.n)
             xo, vo = self._xo, self._vo
             if self._serial():
                 self._advance_serial_pp(x, v, xo, vo, dt, start, n_steps)
@@ -129,6 +126,13 @@ class Integrator:
         if bad != NOT_DIVERGED:
             return bad - start + 1
         return n_steps
+
+    def _use_ping_pong(self):
+        """Subclasses: steps go through ``_step_into`` and a second pair of state buffers, allocated
+        here with the integrator (so the memory they take is there from the start, as counted)."""
+        self.ping_pong = True
+        self._xo = ti.Vector.field(3, float, self.n)
+        self._vo = ti.Vector.field(3, float, self.n)
 
     def step(self, state, dt: float) -> bool:
         """One step; returns False if it diverged."""

@@ -33,7 +33,8 @@ class ExplicitRungeKutta(Integrator):
         super().__init__(model, terrain, options)
         stages = len(self.b)
         # One stage with gathered forces reads the old state while writing the new: ping-pong.
-        self.ping_pong = stages == 1 and self.forces.strategy == "gather"
+        if stages == 1 and self.forces.strategy == "gather":
+            self._use_ping_pong()
         # Stage derivatives k_j kept only where a stage after the next one still needs them
         # (none of the tableaus here: each stage uses only the one before it).
         self._kept = [any(self._a(t, j) != 0 for t in range(j + 2, stages)) for j in range(stages)]
@@ -137,7 +138,8 @@ class SemiImplicitEuler(Integrator):
 
     def __init__(self, model, terrain, options=None):
         super().__init__(model, terrain, options)
-        self.ping_pong = self.forces.strategy == "gather"
+        if self.forces.strategy == "gather":
+            self._use_ping_pong()
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
