@@ -222,6 +222,8 @@ def cmd_run(args) -> int:
     fps = scene.data["render"]["fps"]
     label = f"{scene.label}/{sim.integrator_name}"
     _note_whole_steps(duration, sim.dt)
+    if sim.integrator.precision_note(sim.dt):
+        print(f"note: {sim.integrator.precision_note(sim.dt)}", file=sys.stderr)
     recorder, step_progress = None, None
     if render_options.any:
         from .render.recorder import FrameRecorder, frame_count
