@@ -299,20 +299,11 @@ def _slide(sim, speed=5.0, times=(0.4, 1.0)):
     return out
 
 
-# fast_mass_spring at x10: the deceleration is mu g within 10 %, but the frozen friction multipliers
-# do not settle within its 20 iterations and the cube stops after 3.69 m instead of 4.25 m
-# (measured; 30 iterations made another case worse). A known defect of issue 11, kept visible:
-# strict, so the test fails the day it is fixed and the mark must go.
-_FMS_X10_STOPS_EARLY = pytest.mark.xfail(strict=True, reason="fast_mass_spring x10 stops at 3.69 m, not 4.25 m")
-
-
 @pytest.mark.parametrize("stiffness", [1.0, 10.0])
 @pytest.mark.parametrize("name", IMPLICIT)
-def test_sliding_cube_decelerates_at_mu_g(name, stiffness, request):
+def test_sliding_cube_decelerates_at_mu_g(name, stiffness):
     """Coulomb friction (mu = 0.3) on a cube sliding on the plane: deceleration mu g, as for the
     explicit methods (next test), until it stops."""
-    if (name, stiffness) == ("fast_mass_spring", 10.0):
-        request.applymarker(_FMS_X10_STOPS_EARLY)
     sim = _sim("plane", name, stiffness)
     v0, v1 = _slide(sim)
     assert (v0 - v1) / 0.6 == pytest.approx(0.3 * 9.8, rel=0.1)

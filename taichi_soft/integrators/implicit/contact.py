@@ -42,12 +42,21 @@ class ContactSet:
         self.trial_active = ti.field(ti.i32, n)
         self.released = ti.field(ti.i32, n)  # releases in this step (each widens the release margin)
         self.lam = ti.field(float, n)  # frozen multiplier h^2 |F_n| of a held particle [kg m]
+        # |F_n| [N] at the last gradient of the previous step (0 if not held then): the warm start of
+        # the next step's multiplier (the lagged normal force of IPC) for a particle still held.
+        self.fn_last = ti.field(float, n)
         self.release_tol = ti.field(float, ())  # release margin floor [m/s^2] (the solver's tolerance)
 
     @ti.func
-    def _start_direction(self, i, xi, d):
+    def _start_direction(self, i, xi, d, dt):
         """Direction of particle i's start move (predicted move ``d`` = y - x_n, [m]); holds it if it
-        sits on the surface and the predictor points inward; lowers T_MAX to its crossing fraction."""
+        sits on the surface and the predictor points inward; lowers T_MAX to its crossing fraction.
+
+        A particle held from the start that was held at the end of the previous step starts with the
+        previous step's normal force as its friction multiplier (warm start): the first gradient, at
+        the predictor, over-counts the load (the predictor compresses the springs above the held
+        layer by h^2 g), and refreezing from there cost iterations and friction (docs/implicit.md)."""
+        warm = self.fn_last[i] * dt * dt
         self.active[i] = 0
         self.released[i] = 0
         self.lam[i] = 0.0
@@ -60,6 +69,9 @@ class ContactSet:
                 # along the surface only.
                 self.active[i] = 1
                 self.normal[i] = nrm
+                self.lam[i] = warm
+                if warm > 0:
+                    self.sc[S.N_WARM] += 1.0
                 d -= dn * nrm
             else:
                 dist_y, _n = self.terrain.query(i, xi + d)
@@ -71,8 +83,9 @@ class ContactSet:
     def _contact_gradient(self, i, xi, gi, dt):
         """Active set and friction for particle i at xi with (frictionless) gradient gi [kg m].
 
-        Releases a clearly pulling held particle (once per step), refreezes its multiplier when the
-        driver asked for it (``ctl[UPDATE]``), corrects the objective for any change of the friction
+        Releases a clearly pulling held particle, refreezes its multiplier when the driver asked for
+        it (``ctl[UPDATE]``) or when it has none yet (held since the last freeze: it gets its first
+        multiplier at its first gradient), corrects the objective for any change of the friction
         weight (the term is linear in lam), and returns gi plus the friction gradient.
         """
         m = self.model
@@ -90,14 +103,17 @@ class ContactSet:
                 self.active[i] = 0
                 self.released[i] += 1
                 lam_new = 0.0
+                self.fn_last[i] = 0.0
             else:
                 cand = ti.max(c, 0.0)
-                self.sc[S.LAM_CHANGE] += ti.abs(cand - lam_old)
-                self.sc[S.LAM_SUM] += cand
-                if self.ctl[S.UPDATE]:
+                if self.ctl[S.UPDATE] or lam_old == 0:
                     lam_new = cand
+                self.sc[S.LAM_CHANGE] += ti.abs(cand - lam_new)
+                self.sc[S.LAM_SUM] += cand
+                self.fn_last[i] = cand / (dt * dt)
         else:
             lam_new = 0.0
+            self.fn_last[i] = 0.0
         fh = ti.Matrix.zero(float, 3, 3)
         if lam_new != lam_old or lam_new > 0:
             f0, fg, fh1 = self._friction(i, xi, nrm, 1.0)
