@@ -13,9 +13,11 @@ per-particle ti.func called from the phases of the step (docs/implicit.md, "Cont
   out of the solve (Baraff & Witkin 1998, Sec. 5.3). It is released only when its multiplier is
   clearly negative, below -m h^2 max(tol, current residual) (an inexact iterate's force error is
   as large as the residual), a margin that grows with each release in the step.
-* **Frozen friction**: each held particle's multiplier lam = h^2 |F_n| is frozen at the step's
-  first gradient and refrozen only by a bounded number of outer updates (``friction_updates``),
-  each of which corrects the current objective value, so one objective is minimised between them.
+* **Frozen friction**: each held particle's multiplier lam = h^2 |F_n| is frozen for the solve and
+  refrozen only by a bounded number of outer updates (``friction_updates``), each of which
+  corrects the current objective value, so one objective is minimised between them. A particle
+  held from the start that was held at the end of the previous step starts with that step's
+  normal force (warm start, the lagged force of IPC); others get theirs at their first gradient.
 * **Projection** (``_project``): trial points put held particles back onto the surface (its
   normal may turn along a curved terrain) and project and hold others that end inside.
 * **Restitution** (``_bounce``): a held particle that approached faster than the terrain's

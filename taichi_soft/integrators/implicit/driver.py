@@ -206,10 +206,14 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         capped = self.ctl[S.OUTER] >= self.max_iters[None]
         small = self.ctl[S.OUTER] > 0 and was_update == 0 and self.sc[S.STEP] <= self.velocity_tol[None] * dt
         converged = self.sc[S.RES2] <= self.tol2[None] or small
-        # Refreeze the friction multipliers (bounded) at convergence if they moved by more than 10 %
-        # (a particle held since the last freeze gets its first multiplier at its first gradient).
-        moved = self.sc[S.LAM_CHANGE] > 0.1 * self.sc[S.LAM_SUM] + 1e-300
-        if converged and moved and not capped and self.ctl[S.UPDATES] < self.max_updates[None]:
+        # Refreeze the friction multipliers (bounded): at convergence if they moved by more than 10 %,
+        # or at once if they are mostly stale -- but not at the step's first gradient, at the start
+        # point (the predictor), which over-counts the load the warm-started multipliers carry. (A
+        # particle held since the last freeze gets its first multiplier at its first gradient.)
+        change = self.sc[S.LAM_CHANGE]
+        stale = k > 0 and change > 0.5 * self.sc[S.LAM_SUM] + 1e-300
+        moved = change > 0.1 * self.sc[S.LAM_SUM] + 1e-300
+        if (stale or (converged and moved)) and not capped and self.ctl[S.UPDATES] < self.max_updates[None]:
             self.ctl[S.UPDATE] = 1
             self.ctl[S.UPDATES] += 1
         elif converged or capped:
