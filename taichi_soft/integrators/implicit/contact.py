@@ -43,10 +43,9 @@ class ContactSet:
         self.active = ti.field(ti.i32, n)  # 1 = held on the terrain surface
         self.trial_active = ti.field(ti.i32, n)
         self.released = ti.field(ti.i32, n)  # releases in this step (each widens the release margin)
-        self.lam = ti.field(float, n)  # frozen multiplier h^2 |F_n| of a held particle [kg m]
-        # |F_n| [N] at the last gradient of the previous step (0 if not held then): the warm start of
+        # Frozen multiplier h^2 |F_n| of a held particle [kg m]. Kept after the step: the warm start of
         # the next step's multiplier (the lagged normal force of IPC) for a particle still held.
-        self.fn_last = ti.field(float, n)
+        self.lam = ti.field(float, n)
         self.release_tol = ti.field(float, ())  # release margin floor [m/s^2] (the solver's tolerance)
 
     @ti.func
@@ -57,8 +56,11 @@ class ContactSet:
         A particle held from the start that was held at the end of the previous step starts with the
         previous step's normal force as its friction multiplier (warm start): the first gradient, at
         the predictor, over-counts the load (the predictor compresses the springs above the held
-        layer by h^2 g), and refreezing from there cost iterations and friction (docs/implicit.md)."""
-        warm = self.fn_last[i] * dt * dt
+        layer by h^2 g), and refreezing from there cost iterations and friction (docs/implicit.md).
+        The previous step's multiplier, h_prev^2 |F_n|, is rescaled to this step's h^2."""
+        warm = ti.cast(0.0, float)
+        if self.sc[S.H2_PREV] > 0:
+            warm = self.lam[i] * (dt * dt / self.sc[S.H2_PREV])
         self.active[i] = 0
         self.released[i] = 0
         self.lam[i] = 0.0
@@ -72,8 +74,6 @@ class ContactSet:
                 self.active[i] = 1
                 self.normal[i] = nrm
                 self.lam[i] = warm
-                if warm > 0:
-                    self.sc[S.N_WARM] += 1.0
                 d -= dn * nrm
             else:
                 dist_y, _n = self.terrain.query(i, xi + d)
@@ -105,17 +105,14 @@ class ContactSet:
                 self.active[i] = 0
                 self.released[i] += 1
                 lam_new = 0.0
-                self.fn_last[i] = 0.0
             else:
                 cand = ti.max(c, 0.0)
                 if self.ctl[S.UPDATE] or lam_old == 0:
                     lam_new = cand
                 self.sc[S.LAM_CHANGE] += ti.abs(cand - lam_new)
                 self.sc[S.LAM_SUM] += cand
-                self.fn_last[i] = cand / (dt * dt)
         else:
             lam_new = 0.0
-            self.fn_last[i] = 0.0
         fh = ti.Matrix.zero(float, 3, 3)
         if lam_new != lam_old or lam_new > 0:
             f0, fg, fh1 = self._friction(i, xi, nrm, 1.0)

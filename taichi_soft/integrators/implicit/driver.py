@@ -94,6 +94,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     @ti.func
     def _begin_step(self, x: ti.template(), v: ti.template(), dt):
         m = self.model
+        self.sc[S.H2_PREV] = self.h2[None]  # the multipliers kept in lam are for this h^2
         self.h2[None] = dt * dt
         self.fric_eps[None] = self.friction_velocity[None] * dt
         for s in range(m.n_springs):
@@ -101,7 +102,6 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             length = d.norm()
             self.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
         self.sc[S.T_MAX] = 1.0
-        self.sc[S.N_WARM] = 0.0
         self.sc[S.K_START] = 0.0
         self.sc[S.G_START] = 0.0
         for i in range(self.n):
@@ -409,7 +409,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     def reset(self):
         super().reset()
         self.acc.fill(0)
-        self.fn_last.fill(0)  # no warm start from before the reset
+        self.lam.fill(0)  # no warm start from before the reset
         self.n_history[None] = 0
 
     def residual(self) -> float:
