@@ -13,9 +13,11 @@ per-particle ti.func called from the phases of the step (docs/implicit.md, "Cont
   out of the solve (Baraff & Witkin 1998, Sec. 5.3). It is released only when its multiplier is
   clearly negative, below -m h^2 max(tol, current residual) (an inexact iterate's force error is
   as large as the residual), a margin that grows with each release in the step.
-* **Frozen friction**: each held particle's multiplier lam = h^2 |F_n| is frozen at the step's
-  first gradient and refrozen only by a bounded number of outer updates (``friction_updates``),
-  each of which corrects the current objective value, so one objective is minimised between them.
+* **Frozen friction**: each held particle's multiplier lam = h^2 |F_n| is frozen for the solve and
+  refrozen only by a bounded number of outer updates (``friction_updates``), each of which
+  corrects the current objective value, so one objective is minimised between them. A particle
+  held from the start that was held at the end of the previous step starts with that step's
+  normal force (warm start, the lagged force of IPC); others get theirs at their first gradient.
 * **Projection** (``_project``): trial points put held particles back onto the surface (its
   normal may turn along a curved terrain) and project and hold others that end inside.
 * **Restitution** (``_bounce``): a held particle that approached faster than the terrain's
@@ -41,13 +43,24 @@ class ContactSet:
         self.active = ti.field(ti.i32, n)  # 1 = held on the terrain surface
         self.trial_active = ti.field(ti.i32, n)
         self.released = ti.field(ti.i32, n)  # releases in this step (each widens the release margin)
-        self.lam = ti.field(float, n)  # frozen multiplier h^2 |F_n| of a held particle [kg m]
+        # Frozen multiplier h^2 |F_n| of a held particle [kg m]. Kept after the step: the warm start of
+        # the next step's multiplier (the lagged normal force of IPC) for a particle still held.
+        self.lam = ti.field(float, n)
         self.release_tol = ti.field(float, ())  # release margin floor [m/s^2] (the solver's tolerance)
 
     @ti.func
-    def _start_direction(self, i, xi, d):
+    def _start_direction(self, i, xi, d, dt):
         """Direction of particle i's start move (predicted move ``d`` = y - x_n, [m]); holds it if it
-        sits on the surface and the predictor points inward; lowers T_MAX to its crossing fraction."""
+        sits on the surface and the predictor points inward; lowers T_MAX to its crossing fraction.
+
+        A particle held from the start that was held at the end of the previous step starts with the
+        previous step's normal force as its friction multiplier (warm start): the first gradient, at
+        the predictor, over-counts the load (the predictor compresses the springs above the held
+        layer by h^2 g), and refreezing from there cost iterations and friction (docs/implicit.md).
+        The previous step's multiplier, h_prev^2 |F_n|, is rescaled to this step's h^2."""
+        warm = ti.cast(0.0, float)
+        if self.sc[S.H2_PREV] > 0:
+            warm = self.lam[i] * (dt * dt / self.sc[S.H2_PREV])
         self.active[i] = 0
         self.released[i] = 0
         self.lam[i] = 0.0
@@ -60,6 +73,7 @@ class ContactSet:
                 # along the surface only.
                 self.active[i] = 1
                 self.normal[i] = nrm
+                self.lam[i] = warm
                 d -= dn * nrm
             else:
                 dist_y, _n = self.terrain.query(i, xi + d)
@@ -71,8 +85,9 @@ class ContactSet:
     def _contact_gradient(self, i, xi, gi, dt):
         """Active set and friction for particle i at xi with (frictionless) gradient gi [kg m].
 
-        Releases a clearly pulling held particle (once per step), refreezes its multiplier when the
-        driver asked for it (``ctl[UPDATE]``), corrects the objective for any change of the friction
+        Releases a clearly pulling held particle, refreezes its multiplier when the driver asked for
+        it (``ctl[UPDATE]``) or when it has none yet (held since the last freeze: it gets its first
+        multiplier at its first gradient), corrects the objective for any change of the friction
         weight (the term is linear in lam), and returns gi plus the friction gradient.
         """
         m = self.model
@@ -92,10 +107,10 @@ class ContactSet:
                 lam_new = 0.0
             else:
                 cand = ti.max(c, 0.0)
-                self.sc[S.LAM_CHANGE] += ti.abs(cand - lam_old)
-                self.sc[S.LAM_SUM] += cand
-                if self.ctl[S.UPDATE]:
+                if self.ctl[S.UPDATE] or lam_old == 0:
                     lam_new = cand
+                self.sc[S.LAM_CHANGE] += ti.abs(cand - lam_new)
+                self.sc[S.LAM_SUM] += cand
         else:
             lam_new = 0.0
         fh = ti.Matrix.zero(float, 3, 3)

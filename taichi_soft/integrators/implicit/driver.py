@@ -94,6 +94,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     @ti.func
     def _begin_step(self, x: ti.template(), v: ti.template(), dt):
         m = self.model
+        self.sc[S.H2_PREV] = self.h2[None]  # the multipliers kept in lam are for this h^2
         self.h2[None] = dt * dt
         self.fric_eps[None] = self.friction_velocity[None] * dt
         for s in range(m.n_springs):
@@ -117,7 +118,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                 self.sc[S.G_START] -= mi * m.gravity[None].dot(xi)
                 self.y[i] = xi + d
                 if ti.static(self.terrain.has_contact):
-                    d = self._start_direction(i, xi, d)
+                    d = self._start_direction(i, xi, d, dt)
                 self.dx[i] = d
             else:
                 self.y[i] = xi + d
@@ -185,8 +186,6 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.G_START] + self.sc[S.E_TRIAL]
             self.sc[S.H_SCALE] = self.sc[S.K_START] + ti.abs(self.sc[S.G_START]) + self.sc[S.E_TRIAL]
             self._line_search_begin(self.sc[S.T_MAX], S.START_HALVINGS)
-        elif phase == 1:
-            self.ctl[S.UPDATE] = 1  # the first gradient freezes the friction multipliers
         self.ctl[S.PHASE] = ti.min(phase + 1, 2)
 
     @ti.func
@@ -208,9 +207,11 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         small = self.ctl[S.OUTER] > 0 and was_update == 0 and self.sc[S.STEP] <= self.velocity_tol[None] * dt
         converged = self.sc[S.RES2] <= self.tol2[None] or small
         # Refreeze the friction multipliers (bounded): at convergence if they moved by more than 10 %,
-        # or at once if they are mostly stale (particles held since the last freeze carry no friction).
+        # or at once if they are mostly stale -- but not at the step's first gradient, at the start
+        # point (the predictor), which over-counts the load the warm-started multipliers carry. (A
+        # particle held since the last freeze gets its first multiplier at its first gradient.)
         change = self.sc[S.LAM_CHANGE]
-        stale = change > 0.5 * self.sc[S.LAM_SUM] + 1e-300
+        stale = k > 0 and change > 0.5 * self.sc[S.LAM_SUM] + 1e-300
         moved = change > 0.1 * self.sc[S.LAM_SUM] + 1e-300
         if (stale or (converged and moved)) and not capped and self.ctl[S.UPDATES] < self.max_updates[None]:
             self.ctl[S.UPDATE] = 1
@@ -408,6 +409,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     def reset(self):
         super().reset()
         self.acc.fill(0)
+        self.lam.fill(0)  # no warm start from before the reset
         self.n_history[None] = 0
 
     def residual(self) -> float:

@@ -69,10 +69,15 @@ LOCAL_GLOBAL = {
     "tol": Option(0.1, _number_in(0.0, 1e3), "a number in [0, 1000]",
                   "residual [m/s^2] at which iterations stop early (0: only the other tests stop them)"),
     "global_solver": Option("auto", lambda v: v in ("auto", "cholesky", "pcg"), "auto, cholesky or pcg",
-                            "cholesky: prefactored skyline Cholesky (as PCG preconditioner under contact); "
+                            "cholesky: prefactored skyline Cholesky (under contact see contact_solve); "
                             "pcg: matrix-free Jacobi PCG; auto: cholesky on a CPU while the factor is small"),
+    "contact_solve": Option("scaled", lambda v: v in ("scaled", "pcg"), "scaled or pcg",
+                            "global step with particles held on the terrain (global_solver = cholesky): "
+                            "scaled: one solve with the prefactored matrix and one block-Jacobi smoothing "
+                            "step (friction), filtered, its length from the step's quadratic model; "
+                            "pcg: the filtered system solved by PCG to cg_tol"),
     "cg_tol": Option(0.1, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
-                     "relative CG residual of a global step (with contacts, or with pcg)"),
+                     "relative CG residual of a global step (contact_solve = pcg, or global_solver = pcg)"),
 }
 
 

@@ -30,7 +30,8 @@ BOUNCE_B = 20  # restitution: sum m v . dv [J]
 K_SOLVE = 21  # kinetic energy of the solved velocities [J]
 G_END = 22  # gravity energy at the end [J]
 K_END = 23  # kinetic energy after the collision response [J]
-N_SC = 24
+H2_PREV = 24  # h^2 of the previous step [s^2] (the multipliers kept for the warm start are in its units)
+N_SC = 25
 
 # ctl: ints
 DONE = 0  # 1: the step's iteration is over
