@@ -36,6 +36,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DT_CAP = {"explicit_euler": 2e-3, "semi_implicit_euler": 2e-3, "midpoint": 4e-3, "rk4": 6e-3}
 DT_CAP_IMPLICIT = 2e-2
 TERRAINS = ("plane", "tilted_plane", "sphere", "bowl")
+WIN_MARGIN = 1.1  # a win: at least this ratio of wall times (more than the spread within one run)
 DT_LO = 2.5e-4  # [s] lower end of each bisection: every method here is stable at it on the default cube
 
 
@@ -405,8 +406,37 @@ def stability_markdown(result: dict) -> str:
                 else:
                     cells.append(("" if r["bounded"] else ">= ") + f"{r['dt']:.2e} / {_fmt(r['wall_s_per_sim_s'], '.3g')}")
             out.append(f"| {name} | " + " | ".join(cells) + " |")
+        out += ["", *implicit_wins_markdown(result["stiffness_rows"], scales)]
         out.append("")
     return "\n".join(out)
+
+
+def implicit_wins_markdown(rows: list[dict], scales: list) -> list[str]:
+    """Per stiffness, the fastest explicit and implicit method at its own largest stable dt and
+    their ratio of wall time per simulated second; the smallest stiffness from which implicit wins
+    (by ``WIN_MARGIN`` or more, at it and every larger stiffness)."""
+    def best(scale, implicit):
+        found = [r for r in rows if r["stiffness_scale"] == scale and r["dt"] and r.get("wall_s_per_sim_s")
+                 and REGISTRY[r["integrator"]].implicit == implicit]
+        return min(found, key=lambda r: r["wall_s_per_sim_s"], default=None)
+
+    out = ["Fastest method of each family at its own largest stable dt (wall s per simulated s); ratio > 1: "
+           "implicit faster:", "", "| stiffness | best explicit | best implicit | explicit / implicit |", "|---|---|---|---:|"]
+    wins_from = None
+    for scale in scales:
+        e, i = best(scale, False), best(scale, True)
+        if e is None or i is None:
+            continue
+        ratio = e["wall_s_per_sim_s"] / i["wall_s_per_sim_s"]
+        if ratio >= WIN_MARGIN and wins_from is None:
+            wins_from = scale
+        elif ratio < WIN_MARGIN:
+            wins_from = None  # it must keep winning at every larger stiffness
+        out.append(f"| x{scale:g} | {e['integrator']} {e['wall_s_per_sim_s']:.3g} | {i['integrator']} "
+                   f"{i['wall_s_per_sim_s']:.3g} | {ratio:.2f} |")
+    out += ["", f"Implicit wins (by {WIN_MARGIN - 1:.0%} or more) from stiffness x{wins_from:g} on." if wins_from is not None
+            else "Implicit does not win at the largest stiffness measured."]
+    return out
 
 
 def speed_markdown(result: dict) -> str:
