@@ -110,3 +110,21 @@ def test_bench_report_quick_writes_every_file(cli, tmp_path):
     for key in (("engine", "False"), ("engine", "True")):
         assert float(equal[key]["steps_per_s"]) > 0 and float(equal[key]["max_abs_diff"]) < 1e-12
     assert "fitted orders (smooth)" in r.stdout
+
+
+def test_implicit_wins_from_the_first_stiffness_it_keeps_winning():
+    """The stability report's verdict: implicit wins from the smallest stiffness at which it is at
+    least WIN_MARGIN faster and stays so at every larger one."""
+    from taichi_soft.bench.report import WIN_MARGIN, implicit_wins_markdown
+
+    def rows(explicit_walls):
+        out = []
+        for scale, wall in explicit_walls.items():
+            out.append({"integrator": "semi_implicit_euler", "stiffness_scale": scale, "dt": 1e-3, "wall_s_per_sim_s": wall})
+            out.append({"integrator": "fast_mass_spring", "stiffness_scale": scale, "dt": 0.1, "wall_s_per_sim_s": 1.0})
+        return out
+
+    lines = implicit_wins_markdown(rows({1.0: 1.5, 10.0: 0.9, 100.0: 2.0, 1000.0: 9.0}), [1.0, 10.0, 100.0, 1000.0])
+    assert lines[-1].endswith("from stiffness x100 on.")  # x1 won, x10 did not: the win starts at x100
+    lines = implicit_wins_markdown(rows({1.0: WIN_MARGIN * 0.99, 10.0: 0.5}), [1.0, 10.0])
+    assert lines[-1] == "Implicit does not win at the largest stiffness measured."
