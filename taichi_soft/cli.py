@@ -222,8 +222,9 @@ def cmd_run(args) -> int:
     fps = scene.data["render"]["fps"]
     label = f"{scene.label}/{sim.integrator_name}"
     _note_whole_steps(duration, sim.dt)
-    if sim.integrator.precision_note(sim.dt):
-        print(f"note: {sim.integrator.precision_note(sim.dt)}", file=sys.stderr)
+    precision_note = sim.integrator.precision_note(sim.dt)
+    if precision_note:
+        print(f"note: {precision_note}", file=sys.stderr)
     recorder, step_progress = None, None
     if render_options.any:
         from .render.recorder import FrameRecorder, frame_count
@@ -315,18 +316,24 @@ def _print_outputs(labelled):
             print(f"{label}: {path}")
 
 
+def parse_name_list(text: str, flag: str, known: list[str], kind: str, hint: str) -> list[str]:
+    """Comma-separated ``text`` of flag ``flag`` -> names, each in ``known``, no repeats; else a
+    ``UserError`` naming the ``kind`` of name that is unknown, or ``hint`` on how to write the list."""
+    chosen = [n.strip() for n in text.split(",") if n.strip()]
+    for n in chosen:
+        if n not in known:
+            raise UserError(f"{flag}: unknown {kind} {n!r}; choose from: {', '.join(known)}")
+    if not chosen or len(set(chosen)) != len(chosen):
+        raise UserError(f"{flag} {text!r}: {hint}")
+    return chosen
+
+
 def parse_integrator_list(text: str) -> list[str]:
     """``"explicit_euler,rk4"`` -> names, each registered, no repeats; else ``UserError``."""
     from .integrators import names
 
-    chosen = [n.strip() for n in text.split(",") if n.strip()]
-    known = names()
-    for n in chosen:
-        if n not in known:
-            raise UserError(f"--integrators: unknown integrator {n!r}; choose from: {', '.join(known)}")
-    if not chosen or len(set(chosen)) != len(chosen):
-        raise UserError(f"--integrators {text!r}: give distinct names separated by commas, e.g. explicit_euler,rk4")
-    return chosen
+    return parse_name_list(text, "--integrators", names(), "integrator",
+                           "give distinct names separated by commas, e.g. explicit_euler,rk4")
 
 
 def cmd_compare(args) -> int:
@@ -438,13 +445,8 @@ def cmd_gallery(args) -> int:
     from .scene import scene_names
     from .tasks import make_executor, report_failures
 
-    terrains = [t.strip() for t in (args.terrains or ",".join(TERRAINS)).split(",") if t.strip()]
-    shipped = scene_names()
-    for t in terrains:
-        if t not in shipped:
-            raise UserError(f"--terrains: unknown scene {t!r}; choose from: {', '.join(shipped)}")
-    if not terrains or len(set(terrains)) != len(terrains):
-        raise UserError(f"--terrains {args.terrains!r}: give distinct scene names separated by commas")
+    terrains = parse_name_list(args.terrains or ",".join(TERRAINS), "--terrains", scene_names(), "scene",
+                               "give distinct scene names separated by commas")
     from .integrators import names
 
     integrators = parse_integrator_list(args.integrators or ",".join(names()))

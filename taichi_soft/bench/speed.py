@@ -198,7 +198,9 @@ def thread_overlap(task_ms=(0.3, 1.0, 3.0, 10.0), repeats=21) -> list[dict]:
         arg[0], arg[1] = tasks, count
         return median_kernel_seconds(spin, repeats)
 
-    per_k = median_s(1, 100000) / 100000  # seconds per spin iteration
+    if "per_k" not in _OVERLAP:  # seconds per spin iteration, measured once per process
+        _OVERLAP["per_k"] = median_s(1, 100000) / 100000
+    per_k = _OVERLAP["per_k"]
     rows = []
     for ms in task_ms:
         count = max(1, int(ms * 1e-3 / per_k))
@@ -207,7 +209,7 @@ def thread_overlap(task_ms=(0.3, 1.0, 3.0, 10.0), repeats=21) -> list[dict]:
     return rows
 
 
-_OVERLAP = {}  # this process's overlap kernel and its argument field (compiled once)
+_OVERLAP = {}  # this process's overlap kernel, its argument field (compiled once) and spin rate
 
 
 def _overlap_kernel():

@@ -36,7 +36,8 @@ class FastMassSpring(ImplicitIntegrator):
 
     def __init__(self, model, terrain, options=None):
         n = model.n_particles
-        solver = self.parse_options(options or {})["global_solver"]
+        chosen = self.parse_options(options or {})
+        solver = chosen["global_solver"]
         if solver == "auto":
             # The triangular solves are serial: the Cholesky wins on a CPU, PCG on a GPU. Its
             # envelope grows like N^(5/3) for a cube (N particles), factorising like N^(7/3): past
@@ -47,7 +48,7 @@ class FastMassSpring(ImplicitIntegrator):
             solver = "cholesky" if cpu and small else "pcg"
         self.global_solver = solver
         # Fixed at construction (an option), so a compile-time constant.
-        self.scaled_contact = solver == "cholesky" and self.parse_options(options or {})["contact_solve"] == "scaled"
+        self.scaled_contact = solver == "cholesky" and chosen["contact_solve"] == "scaled"
         self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
         self.diag = ti.field(float, n)  # diagonal of M + L (PCG's Jacobi preconditioner) [kg]
         if solver == "cholesky":
