@@ -79,7 +79,8 @@ class FieldCounts:
 # keeps (k, kd) per adjacency entry). Implicit solvers build the adjacency and no force-pass
 # buffers, whatever the family. Measured from the fields the code allocates at two sizes in f32
 # and f64 (tests/test_memory.py checks the table against the allocation); the source files are
-# the truth. fast_mass_spring's Cholesky factor is counted separately ("cholesky").
+# the truth. fast_mass_spring's Cholesky factor ("cholesky", _cholesky_values) and its L-BFGS
+# pairs (_lbfgs_reals, as many as its ``history`` option keeps) are counted separately.
 _MODEL = FieldCounts(2, 0, 1, 3)  # mass, inv_mass | rest, ends x2, group
 _ADJACENCY = FieldCounts(0, 2, 2, 6)  # adj_offset, adj_split | per spring end: rest, other, group, code
 _STATE = FieldCounts(6, 0, 0, 0)  # x, v
@@ -130,6 +131,17 @@ def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
         return 0
     nnz = sum(envelope_size(int(b["n"])) for b in scene_data["body"])
     return nnz if solver == "cholesky" or nnz <= CHOLESKY_AUTO_MAX else 0
+
+
+def _lbfgs_reals(scene_data: dict, integrator: str) -> int:
+    """Per-particle reals of fast_mass_spring's L-BFGS pairs: 6 per pair kept (s, y), 6 for the
+    iterate and rhs it saves; 0 with ``history = 0``."""
+    if integrator != "fast_mass_spring":
+        return 0
+    from .integrators.implicit.options import LOCAL_GLOBAL
+
+    history = scene_data.get("solver", {}).get("history", LOCAL_GLOBAL["history"].default)
+    return 6 * history + 6 if history else 0
 
 
 def _envelope_transient(scene_data: dict, integrator: str, n_p: int, n_s: int, real: int) -> int:
@@ -186,6 +198,7 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     for name in names:
         nnz = _cholesky_values(scene_data, name, arch)
         fields += field_counts(name, family, nnz > 0).bytes(n_p, n_s, real) + nnz * real
+        fields += _lbfgs_reals(scene_data, name) * n_p * real
         fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
     if len(scene_data["body"]) > 1:  # body-body contact: one per simulation
         fields += len(names) * collision.field_bytes(n_p, real)

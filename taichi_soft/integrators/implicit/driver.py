@@ -32,8 +32,8 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
-    (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``_direction()`` (ti.func, serial: dx from rhs, counting CG iterations in
-    ``ctl[CG]``), ``_direction_python()`` (the same from Python scope), ``_tol()`` and
+    (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``_direction(x)`` (ti.func, serial: dx from rhs at the
+    iterate x, counting CG iterations in ``ctl[CG]``), ``_direction_python(x)`` (the same from Python scope), ``_tol()`` and
     ``_max_iterations()`` (the residual tolerance [m/s^2] and iteration cap from their options).
     """
 
@@ -248,6 +248,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.acc[S.A_UPDATES] += ti.cast(self.ctl[S.UPDATES], ti.f64)
         self.acc[S.A_CLAMPED] += ti.cast(self.ctl[S.CLAMPED], ti.f64)
         self.acc[S.A_BOUNCE] += ti.cast(self.ctl[S.BOUNCE_LIMITED], ti.f64)
+        self.acc[S.A_LB_RESTARTS] += ti.cast(self.ctl[S.LB_RESTARTS], ti.f64)
 
     # -- the serial driver (inside the kernel that runs many steps) ------------------------------
     # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so
@@ -264,7 +265,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                     break
                 searching = self._iterating()
                 if searching:
-                    self._direction()
+                    self._direction(x)
                     self._after_direction()
             if searching:
                 for _h in range(self.ctl[S.LS_LIMIT] + 1):
@@ -292,7 +293,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                     break
                 searching = not self.ctl[S.UPDATE]
                 if searching:
-                    self._direction_python()
+                    self._direction_python(x)
                     self._k_after_direction()
             if searching:
                 for _ in range(int(self.ctl[S.LS_LIMIT]) + 1):

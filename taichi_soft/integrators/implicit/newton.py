@@ -88,11 +88,11 @@ class ImplicitEuler(ImplicitIntegrator):
             dst[i] = self.precond[i] @ src[i]
 
     @ti.func
-    def _direction(self):
+    def _direction(self, x: ti.template()):
         self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
         self.ctl[S.CG] += self.pcg.iters[None]
 
-    def _direction_python(self):
+    def _direction_python(self, x):
         self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
 
     def stats(self) -> dict:

@@ -78,6 +78,9 @@ LOCAL_GLOBAL = {
                             "pcg: the filtered system solved by PCG to cg_tol"),
     "cg_tol": Option(0.1, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
                      "relative CG residual of a global step (contact_solve = pcg, or global_solver = pcg)"),
+    "history": Option(5, lambda v: _int_at_least(0)(v) and v <= 32, "an integer in [0, 32]",
+                      "L-BFGS pairs kept within a step, the global step as the initial inverse Hessian "
+                      "(Liu, Bouaziz & Kavan 2017); 0: plain local/global iterations"),
 }
 
 

@@ -48,11 +48,19 @@ EVALS = 10  # gradient evaluations in this step
 PHASE = 11  # 0: reference at x_n, 1: feasible start, 2: iterating
 CLAMPED = 12  # 1: the energy clamp acted on this step
 BOUNCE_LIMITED = 13  # 1: restitution was scaled down to the energy the step lost
-N_CTL = 14
+# fast_mass_spring's L-BFGS history (local_global.py); zeroed with the rest at every step's start
+LB_COUNT = 14  # pairs (s, y) kept
+LB_HEAD = 15  # slot the next pair goes to
+LB_PENDING = 16  # 1: x and rhs of the last direction are saved; the next direction completes a pair
+LB_UPDATES = 17  # friction refreezes (UPDATES) when the last direction was taken
+LB_ACTIVE = 18  # held particles when the last direction was taken
+LB_RETRY = 19  # 1: the L-BFGS direction was no descent direction; take the global step alone
+LB_RESTARTS = 20  # such restarts in this step
+N_CTL = 21
 
 # acc: f64 sums over steps since the last stats() call
-A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE = range(8)
-N_ACC = 8
+A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE, A_LB_RESTARTS = range(9)
+N_ACC = 9
 
 START_HALVINGS = 3  # most halvings of the feasible start fraction before starting at x_n
 RES_HISTORY = 64  # residuals of the last step's gradient evaluations kept for inspection
