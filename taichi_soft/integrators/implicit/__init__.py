@@ -6,11 +6,13 @@ local/global (``fast_mass_spring``), both minimising the step's objective (docs/
 * ``contact``: feasible start, active set with hysteresis, frozen friction, restitution;
 * ``driver``: the one driver both solvers share (serial in-kernel and parallel Python loops
   sequence the same decision functions), the step's energy account;
+* ``laplacian``: the constant matrix M + L and its skyline Cholesky factor;
 * ``newton``: ``implicit_euler`` (Hessian, PCG operator);
-* ``local_global``: ``fast_mass_spring`` (prefactored global matrix).
+* ``local_global``: ``fast_mass_spring`` (prefactored global matrix, L-BFGS).
 """
 from .driver import ImplicitIntegrator
-from .local_global import CHOLESKY_AUTO_MAX, FastMassSpring
+from .laplacian import CHOLESKY_AUTO_MAX
+from .local_global import FastMassSpring
 from .newton import ImplicitEuler
 
 __all__ = ["ImplicitIntegrator", "ImplicitEuler", "FastMassSpring", "CHOLESKY_AUTO_MAX"]

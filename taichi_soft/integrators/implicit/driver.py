@@ -90,6 +90,18 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     def _prepare(self, dt: float):
         """Hook run before each ``advance`` with its dt [s] (fast mass-spring refactorises here)."""
 
+    @ti.func
+    def _filter(self, i, q):
+        """q with what particle i cannot move removed: all of it if pinned, the normal component
+        if held on the terrain (Baraff & Witkin 1998, Sec. 5.3)."""
+        out = q
+        if not self._free(i):
+            out = ti.Vector.zero(float, 3)
+        elif ti.static(self.terrain.has_contact):
+            if self.active[i]:
+                out = q - self.normal[i].dot(q) * self.normal[i]
+        return out
+
     # -- phase 1: begin ---------------------------------------------------------------------------
     @ti.func
     def _begin_step(self, x: ti.template(), v: ti.template(), dt):

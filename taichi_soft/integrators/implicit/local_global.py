@@ -16,18 +16,17 @@ its stopping tests apply as for Newton.
 
 import taichi as ti
 
-from ...linalg import PCG, SkylineCholesky
+from ...linalg import PCG
 from ..base import register
 from . import options as opt
 from . import slots as S
 from .driver import ImplicitIntegrator
-
-CHOLESKY_AUTO_MAX = 10_000_000  # largest factor envelope [values] global_solver = "auto" factorises
+from .laplacian import LaplacianMatrix, cholesky_pays
 
 
 @register
 @ti.data_oriented
-class FastMassSpring(ImplicitIntegrator):
+class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     """Local/global solver of Liu et al. 2013 on the same objective, prefactorised global matrix."""
 
     name = "fast_mass_spring"
@@ -39,20 +38,11 @@ class FastMassSpring(ImplicitIntegrator):
         chosen = self.parse_options(options or {})
         solver = chosen["global_solver"]
         if solver == "auto":
-            # The triangular solves are serial: the Cholesky wins on a CPU, PCG on a GPU. Its
-            # envelope grows like N^(5/3) for a cube (N particles), factorising like N^(7/3): past
-            # CHOLESKY_AUTO_MAX values (the 20^3 cube has 6.4e6; the 40^3 one 2e8, 1.6 GB in f64
-            # and an hour-long factorisation) auto takes PCG.
-            cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
-            small = SkylineCholesky.envelope_size(n, model.pairs_np) <= CHOLESKY_AUTO_MAX
-            solver = "cholesky" if cpu and small else "pcg"
+            solver = "cholesky" if cholesky_pays(model) else "pcg"
         self.global_solver = solver
         # Fixed at construction (an option), so a compile-time constant.
         self.scaled_contact = solver == "cholesky" and chosen["contact_solve"] == "scaled"
-        self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
-        self.diag = ti.field(float, n)  # diagonal of M + L (PCG's Jacobi preconditioner) [kg]
-        if solver == "cholesky":
-            self.chol = SkylineCholesky(n, model.pairs_np)
+        self._init_laplacian(model, factorise=solver == "cholesky")
         self.pcg = PCG(n)
         # L-BFGS within a step (fixed at construction: a compile-time constant), see _direction.
         self.history = chosen["history"]
@@ -64,8 +54,6 @@ class FastMassSpring(ImplicitIntegrator):
             self.lb_x = ti.Vector.field(3, float, n)  # the iterate of the last direction [m]
             self.lb_r = ti.Vector.field(3, float, n)  # its rhs [kg m]
             self.lb_dot = ti.field(float, ())
-        self._matrix_key = None
-        self.factorizations = 0
         super().__init__(model, terrain, options)
 
     def _tol(self):
@@ -74,44 +62,8 @@ class FastMassSpring(ImplicitIntegrator):
     def _max_iterations(self):
         return self.options["iterations"]
 
-    # -- the constant global matrix A = M + L, L with weights c_s = h^2 k_s + h kd_s -------------
     def _prepare(self, dt: float):
-        """(Re)build the global matrix when dt, a stiffness, a damper coefficient or a mass changed."""
-        key = (float(dt), self.model.group_k.to_numpy().tobytes(), self.model.group_kd.to_numpy().tobytes(),
-               self.model.mass_version)
-        if key == self._matrix_key:
-            return
-        self._k_weights(dt)
-        if self.global_solver == "cholesky":
-            self._k_assemble()
-            self.chol.factor()
-            if not self.chol.ok[None]:
-                raise FloatingPointError("fast_mass_spring: global matrix is not positive definite (negative stiffness?)")
-        self._matrix_key = key
-        self.factorizations += 1
-
-    @ti.kernel
-    def _k_weights(self, dt: float):
-        m = self.model
-        for g in range(m.n_groups):
-            self.group_c[g] = dt * dt * m.group_k[g] + dt * m.group_kd[g]
-        for i in range(self.n):
-            d = m.mass[i]
-            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
-                d += self.group_c[m.adj_group[e]]
-            self.diag[i] = d if self._free(i) else 0.0
-
-    @ti.kernel
-    def _k_assemble(self):
-        m = self.model
-        self.chol.clear()
-        for i in range(self.n):
-            # Pinned rows become identity rows: their correction is zero (Dirichlet).
-            self.chol.add(i, i, self.diag[i] if self._free(i) else 1.0)
-        for s in range(m.n_springs):
-            a, b = m.spring_ends[s][0], m.spring_ends[s][1]
-            if self._free(a) and self._free(b):
-                self.chol.add(ti.max(a, b), ti.min(a, b), -self.group_c[m.spring_group[s]])
+        self._prepare_laplacian(dt)
 
     # The global step's linear system, filtered by the contact constraints: A dx = rhs with the
     # normal component of dx fixed to 0 for held particles (as in the Newton solve). With nothing
@@ -126,16 +78,6 @@ class FastMassSpring(ImplicitIntegrator):
     @ti.func
     def _store_preconditioner(self, i):
         pass
-
-    @ti.func
-    def _filter(self, i, q):
-        out = q
-        if not self._free(i):
-            out = ti.Vector.zero(float, 3)
-        elif ti.static(self.terrain.has_contact):
-            if self.active[i]:
-                out = q - self.normal[i].dot(q) * self.normal[i]
-        return out
 
     @ti.func
     def apply(self, src: ti.template(), dst: ti.template()):

@@ -75,12 +75,7 @@ class ImplicitEuler(ImplicitIntegrator):
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 s = m.adj_spring[e]
                 q += self.spring_hess[s if s >= 0 else -s - 1] @ (src[i] - src[m.adj_other[e]])
-            if not self._free(i):
-                q = ti.Vector.zero(float, 3)
-            elif ti.static(self.terrain.has_contact):
-                if self.active[i]:
-                    q -= self.normal[i].dot(q) * self.normal[i]
-            dst[i] = q
+            dst[i] = self._filter(i, q)
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):

@@ -1,0 +1,74 @@
+"""The constant matrix A = M + L of a step, L the springs' graph Laplacian with weights
+c_s = h^2 k_s + h kd_s [kg] (the same for x, y and z: A (x) I3), prefactorised by a skyline
+Cholesky when asked.
+
+``fast_mass_spring``'s global step solves with it (docs/implicit.md). (Tried as the coarse solve of
+a two-level preconditioner for ``implicit_euler``'s PCG: 3-4x fewer CG iterations, but each cost
+6x a block-Jacobi one on a CPU, so Newton got 1.6-1.9x slower; not kept.) A depends on dt, the stiffnesses, the damper coefficients and the masses only, so it is
+refactorised when one of them changes (``factorizations`` counts them), never per iteration.
+"""
+
+import taichi as ti
+
+from ...linalg import SkylineCholesky
+
+CHOLESKY_AUTO_MAX = 10_000_000  # largest factor envelope [values] an "auto" option factorises
+
+
+def cholesky_pays(model) -> bool:
+    """Whether "auto" factorises A: on a CPU (the triangular solves are serial, so on a GPU PCG
+    wins) while the envelope holds at most CHOLESKY_AUTO_MAX values. The envelope grows like
+    N^(5/3) for a cube (N particles), factorising like N^(7/3): the 20^3 cube has 6.4e6 values;
+    the 40^3 one 2e8, 1.6 GB in f64 and an hour-long factorisation."""
+    cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+    return cpu and SkylineCholesky.envelope_size(model.n_particles, model.pairs_np) <= CHOLESKY_AUTO_MAX
+
+
+@ti.data_oriented
+class LaplacianMatrix:
+    """Mixin of the implicit integrators: the fields of A = M + L and its factorisation."""
+
+    def _init_laplacian(self, model, factorise: bool):
+        self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
+        self.diag = ti.field(float, model.n_particles)  # diagonal of M + L [kg] (0 for pinned particles)
+        self.chol = SkylineCholesky(model.n_particles, model.pairs_np) if factorise else None
+        self._matrix_key = None
+        self.factorizations = 0
+
+    def _prepare_laplacian(self, dt: float):
+        """(Re)build A when dt, a stiffness, a damper coefficient or a mass changed; factorise it."""
+        key = (float(dt), self.model.group_k.to_numpy().tobytes(), self.model.group_kd.to_numpy().tobytes(),
+               self.model.mass_version)
+        if key == self._matrix_key:
+            return
+        self._k_weights(dt)
+        if self.chol is not None:
+            self._k_assemble()
+            self.chol.factor()
+            if not self.chol.ok[None]:
+                raise FloatingPointError(f"{self.name}: the matrix M + L is not positive definite (negative stiffness?)")
+        self._matrix_key = key
+        self.factorizations += 1
+
+    @ti.kernel
+    def _k_weights(self, dt: float):
+        m = self.model
+        for g in range(m.n_groups):
+            self.group_c[g] = dt * dt * m.group_k[g] + dt * m.group_kd[g]
+        for i in range(self.n):
+            d = m.mass[i]
+            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                d += self.group_c[m.adj_group[e]]
+            self.diag[i] = d if self._free(i) else 0.0
+
+    @ti.kernel
+    def _k_assemble(self):
+        m = self.model
+        self.chol.clear()
+        for i in range(self.n):
+            # Pinned rows become identity rows: their correction is zero (Dirichlet).
+            self.chol.add(i, i, self.diag[i] if self._free(i) else 1.0)
+        for s in range(m.n_springs):
+            a, b = m.spring_ends[s][0], m.spring_ends[s][1]
+            if self._free(a) and self._free(b):
+                self.chol.add(ti.max(a, b), ti.min(a, b), -self.group_c[m.spring_group[s]])
