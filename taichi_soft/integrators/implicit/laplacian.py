@@ -2,10 +2,11 @@
 c_s = h^2 k_s + h kd_s [kg] (the same for x, y and z: A (x) I3), prefactorised by a skyline
 Cholesky when asked.
 
-``fast_mass_spring``'s global step solves with it (docs/implicit.md). (Tried as the coarse solve of
-a two-level preconditioner for ``implicit_euler``'s PCG: 3-4x fewer CG iterations, but each cost
-6x a block-Jacobi one on a CPU, so Newton got 1.6-1.9x slower; not kept.) A depends on dt, the stiffnesses, the damper coefficients and the masses only, so it is
-refactorised when one of them changes (``factorizations`` counts them), never per iteration.
+``fast_mass_spring``'s global step solves with it (docs/implicit.md). A depends on dt, the
+stiffnesses, the damper coefficients and the masses only, so it is refactorised when one of them
+changes (``factorizations`` counts them), never per iteration. (Tried as the coarse solve of a
+two-level preconditioner for ``implicit_euler``'s PCG: 3-4x fewer CG iterations, but each cost
+~6x a block-Jacobi one on a CPU, so Newton got 1.6-1.9x slower; not kept.)
 """
 
 import taichi as ti

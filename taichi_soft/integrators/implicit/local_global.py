@@ -174,9 +174,11 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     # (one global step, plus 4 * history dot products and updates over the particles) and learns
     # the curvature the constant matrix lacks from the last ``history`` updates of this step. The
     # pairs s = x_{k+1} - x_k, y = grad_{k+1} - grad_k (filtered: rhs_k - rhs_{k+1}) are kept only
-    # while the objective and the constraints stay the same: a friction refreeze or a change in the
-    # number of held particles drops them, as does every new step. A direction that is not a
-    # descent direction drops them too and takes the global step alone (counted: lbfgs_restarts).
+    # while nothing is held and the objective stays the same: a held particle, a friction refreeze
+    # or a new step drops them. (Pairs kept under contact, with four initial inverse Hessians, made
+    # the drop's landing steps slower, not faster: docs/implicit.md, "Measured results".) A
+    # direction that is not a descent direction drops them too and takes the global step alone
+    # (counted: lbfgs_restarts).
     @ti.func
     def _lbfgs_pair(self, x: ti.template()):
         """Complete the pair of the update accepted since the last direction; save x and rhs."""
@@ -192,10 +194,9 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             self.lb_dot[None] += s.dot(y)
             self.lb_x[i] = x[i]
             self.lb_r[i] = self.rhs[i]
-        n_active = ti.cast(self.sc[S.N_ACTIVE], ti.i32)
-        same = c[S.LB_UPDATES] == c[S.UPDATES] and c[S.LB_ACTIVE] == n_active
-        if not same or n_active > 0:
-            c[S.LB_COUNT] = 0
+        held = ti.cast(self.sc[S.N_ACTIVE] > 0, ti.i32)
+        if held or c[S.LB_HELD] or c[S.LB_UPDATES] != c[S.UPDATES]:
+            c[S.LB_COUNT] = 0  # held now or at the last direction, or a new objective
         elif c[S.LB_PENDING] and self.lb_dot[None] > 0:
             self.lb_rho[head] = 1.0 / self.lb_dot[None]
             c[S.LB_HEAD] = (head + 1) % mh
@@ -204,7 +205,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             c[S.LB_COUNT] = ti.min(c[S.LB_COUNT], mh - 1)  # the slot just written held the oldest pair
         c[S.LB_PENDING] = 1
         c[S.LB_UPDATES] = c[S.UPDATES]
-        c[S.LB_ACTIVE] = n_active
+        c[S.LB_HELD] = held
         c[S.LB_RETRY] = 0
 
     @ti.func
