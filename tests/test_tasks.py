@@ -1,6 +1,7 @@
 """The task executor (taichi_soft.tasks): retry, failure report, Ctrl-C, scheduler refusal, and
 the same sweep results from 1 or 2 local processes and from a Dask LocalCluster."""
 import _thread
+import signal
 import threading
 import time
 from pathlib import Path
@@ -39,6 +40,9 @@ def test_ctrl_c_cancels_running_tasks_and_keeps_finished_ones(helpers_on_path, t
     jobs = [Task("quick", "task_helpers:square", {"x": 3}),
             Task("slow", "task_helpers:slow", {"seconds": 60, "marker": str(tmp_path / "slow")})]
     ex = LocalExecutor(2)
+    # Python's own SIGINT handler, as in a terminal: a process started in the background by a
+    # non-interactive shell inherits SIGINT ignored, and interrupt_main() then does nothing.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(2.0, _thread.interrupt_main)  # what Ctrl-C does to the main thread
     start = time.perf_counter()
     timer.start()
@@ -47,6 +51,7 @@ def test_ctrl_c_cancels_running_tasks_and_keeps_finished_ones(helpers_on_path, t
     finally:
         timer.cancel()
         ex.close()
+        signal.signal(signal.SIGINT, previous)
     assert out.interrupted and out.results == {"quick": 9} and not out.failed
     assert time.perf_counter() - start < 15, "the slow task's process was not killed"
     assert not (tmp_path / "slow").exists()
