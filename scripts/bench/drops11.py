@@ -3,7 +3,7 @@ rotations of 10, 25, 30, 40 and 55 degrees, 2 s at dt = 1/30 s, f64, serial): on
 (a small change at the landing changes whether the cube bounces), five compare options fairly.
 
 usage (from the repository root):
-  [NAME=implicit_euler] .venv/bin/python scripts/bench/drops11.py 10,100 [solver options, e.g. history=0]
+  [NAME=implicit_euler] [SCENE=bowl] [N=15] .venv/bin/python scripts/bench/drops11.py 10,100 [solver options, e.g. history=0]
 """
 import os, sys, time
 sys.path.insert(0, os.getcwd())
@@ -13,13 +13,15 @@ from taichi_soft.scene import load_scene
 from taichi_soft.simulation import Simulation
 from taichi_soft.integrators import names
 NAME = os.environ.get("NAME", "fast_mass_spring")
+SCENE = os.environ.get("SCENE", "plane")
+EXTRA = [f"body.0.n={os.environ['N']}"] if "N" in os.environ else []
 scales = [float(s) for s in sys.argv[1].split(",")]
 opts = [a if a.startswith("contact.") else "solver." + a for a in sys.argv[2:]]
 angles = (10.0, 25.0, 30.0, 40.0, 55.0)
 for sc in scales:
     tot_it = tot_t = tot_res = tot_cg = 0.0; cl = 0
     for ang in angles:
-        sim = Simulation(load_scene("plane", opts + [f"body.0.rotation.degrees={ang}"], integrator_names=names()), NAME, 1/30)
+        sim = Simulation(load_scene(SCENE, opts + EXTRA + [f"body.0.rotation.degrees={ang}"], integrator_names=names()), NAME, 1/30)
         sim.model.group_k.from_numpy(sim.model.group_k.to_numpy() * sc)
         sim.set_dt(1/30)
         best = 1e9

@@ -1,6 +1,7 @@
 """Issue 11 speed goals in one interleaved run (taichi-soft, CPU, f64, serial mode).
 
 usage (from the repository root):  .venv/bin/python scripts/bench/goals11.py [rounds]   (default 3 rounds)
+[EXTRA_FMS="global_solver=pcg cg_tol=0.3"] adds one more fast_mass_spring configuration.
 
 The default drop on the plane scene (10^3 cube, 2 s), spring stiffness x10, x100, x1000:
 
@@ -34,6 +35,11 @@ IMPLICIT_DT = 1.0 / 30.0
 HORIZON = 2.0
 
 
+def base(label: str) -> str:
+    """The integrator of a configuration label ("fast_mass_spring [options]" -> "fast_mass_spring")."""
+    return label.split(" [")[0]
+
+
 def main():
     rounds = int(sys.argv[1]) if len(sys.argv) > 1 else 3
     runtime.init("cpu", "f64")
@@ -48,6 +54,13 @@ def main():
     explicit = [n for n, c in REGISTRY.items() if not c.implicit]
     implicit = [n for n, c in REGISTRY.items() if c.implicit]
     probes = {n: stability.SceneProbe("plane", n, horizon=HORIZON) for n in explicit + implicit}
+    # Optional: one more fast_mass_spring configuration, e.g. EXTRA_FMS="global_solver=pcg cg_tol=0.3".
+    extra = os.environ.get("EXTRA_FMS", "").split()
+    if extra:
+        label = "fast_mass_spring [" + " ".join(extra) + "]"
+        probes[label] = stability.SceneProbe("plane", "fast_mass_spring", [f"solver.{o}" for o in extra],
+                                             horizon=HORIZON)
+        implicit.append(label)
 
     # 1. explicit limits
     limits = {}
@@ -87,7 +100,7 @@ def main():
         ti.sync()
         w1, c1 = time.perf_counter(), time.process_time()
         assert not sim.diverged, c
-        if REGISTRY[n].implicit:
+        if REGISTRY[base(n)].implicit:
             work[c] = sim.integrator.stats()
         return (w1 - w0) / HORIZON, (c1 - c0) / HORIZON
 
@@ -121,8 +134,8 @@ def main():
     print("| stiffness | best explicit (0.9x limit) | best implicit (1/30 s) | ratio (wall) | ratio (cpu) | goal | met |")
     print("|---|---|---|---|---|---|---|")
     for scale in SCALES:
-        ex = min((c for c in configs if c[0] == scale and not REGISTRY[c[1]].implicit), key=med.get)
-        im = min((c for c in configs if c[0] == scale and REGISTRY[c[1]].implicit), key=med.get)
+        ex = min((c for c in configs if c[0] == scale and not REGISTRY[base(c[1])].implicit), key=med.get)
+        im = min((c for c in configs if c[0] == scale and REGISTRY[base(c[1])].implicit), key=med.get)
         r = med[ex] / med[im]
         rc = medc[ex] / medc[im]
         print(f"| x{scale:g} | {ex[1]} {med[ex]:.4f} s | {im[1]} {med[im]:.4f} s | {r:.2f}x | {rc:.2f}x | "
