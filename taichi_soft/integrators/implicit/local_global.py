@@ -181,29 +181,33 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     # (counted: lbfgs_restarts).
     @ti.func
     def _lbfgs_pair(self, x: ti.template()):
-        """Complete the pair of the update accepted since the last direction; save x and rhs."""
+        """Complete the pair of the update accepted since the last direction, if it can be kept;
+        save x and rhs for the next pair (nothing to do while particles are held)."""
         c = ti.static(self.ctl)
         mh = ti.static(self.history)
         head = c[S.LB_HEAD]
+        held = ti.cast(self.sc[S.N_ACTIVE] > 0, ti.i32)
+        # a pair needs an update since the last direction, with nothing held and the same objective
+        keep = c[S.OUTER] > 0 and not held and not c[S.LB_HELD] and c[S.LB_UPDATES] == c[S.UPDATES]
         self.lb_dot[None] = 0.0
         for i in range(self.n):
-            s = x[i] - self.lb_x[i]
-            y = self.lb_r[i] - self.rhs[i]
-            self.lb_s[i, head] = s
-            self.lb_y[i, head] = y
-            self.lb_dot[None] += s.dot(y)
-            self.lb_x[i] = x[i]
-            self.lb_r[i] = self.rhs[i]
-        held = ti.cast(self.sc[S.N_ACTIVE] > 0, ti.i32)
-        if held or c[S.LB_HELD] or c[S.LB_UPDATES] != c[S.UPDATES]:
-            c[S.LB_COUNT] = 0  # held now or at the last direction, or a new objective
-        elif c[S.LB_PENDING] and self.lb_dot[None] > 0:
+            if keep:
+                s = x[i] - self.lb_x[i]
+                y = self.lb_r[i] - self.rhs[i]
+                self.lb_s[i, head] = s
+                self.lb_y[i, head] = y
+                self.lb_dot[None] += s.dot(y)
+            if not held:
+                self.lb_x[i] = x[i]
+                self.lb_r[i] = self.rhs[i]
+        if not keep:
+            c[S.LB_COUNT] = 0
+        elif self.lb_dot[None] > 0:
             self.lb_rho[head] = 1.0 / self.lb_dot[None]
             c[S.LB_HEAD] = (head + 1) % mh
             c[S.LB_COUNT] = ti.min(c[S.LB_COUNT] + 1, mh)
         else:
             c[S.LB_COUNT] = ti.min(c[S.LB_COUNT], mh - 1)  # the slot just written held the oldest pair
-        c[S.LB_PENDING] = 1
         c[S.LB_UPDATES] = c[S.UPDATES]
         c[S.LB_HELD] = held
         c[S.LB_RETRY] = 0
@@ -235,15 +239,15 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
 
     @ti.func
     def _lbfgs_finish(self):
-        """Restore rhs; keep dx in the constrained subspace; no descent: drop the pairs, retry."""
+        """After a recursion over pairs: restore rhs; keep dx in the constrained subspace; no
+        descent: drop the pairs and retry with the global step alone."""
         c = ti.static(self.ctl)
         self.lb_dot[None] = 0.0
         for i in range(self.n):
             self.rhs[i] = self.lb_r[i]
             self.dx[i] = self._filter(i, self.dx[i])
             self.lb_dot[None] += self.rhs[i].dot(self.dx[i])
-        c[S.LB_RETRY] = 0
-        if self.lb_dot[None] <= 0 and c[S.LB_COUNT] > 0:
+        if self.lb_dot[None] <= 0:
             c[S.LB_RETRY] = 1
             c[S.LB_COUNT] = 0
             c[S.LB_RESTARTS] += 1
@@ -254,12 +258,14 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             self._lbfgs_pair(x)
             for attempt in range(2):
                 if attempt == 0 or self.ctl[S.LB_RETRY]:
-                    for j in range(self.ctl[S.LB_COUNT]):
+                    count = self.ctl[S.LB_COUNT]  # 0: the global step alone
+                    for j in range(count):
                         self._lbfgs_first(j)
                     self._global_step()
-                    for j in range(self.ctl[S.LB_COUNT]):
+                    for j in range(count):
                         self._lbfgs_second(j)
-                    self._lbfgs_finish()
+                    if count > 0:
+                        self._lbfgs_finish()
         else:
             self._global_step()
 
@@ -271,13 +277,14 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         for attempt in range(2):
             if attempt and not self.ctl[S.LB_RETRY]:
                 break
-            count = int(self.ctl[S.LB_COUNT])
+            count = int(self.ctl[S.LB_COUNT])  # 0: the global step alone
             for j in range(count):
                 self._k_lbfgs_first(j)
             self._global_step_python()
             for j in range(count):
                 self._k_lbfgs_second(j)
-            self._k_lbfgs_finish()
+            if count:
+                self._k_lbfgs_finish()
 
     @ti.kernel
     def _k_lbfgs_pair(self, x: ti.template()):

@@ -51,12 +51,11 @@ BOUNCE_LIMITED = 13  # 1: restitution was scaled down to the energy the step los
 # fast_mass_spring's L-BFGS history (local_global.py); zeroed with the rest at every step's start
 LB_COUNT = 14  # pairs (s, y) kept
 LB_HEAD = 15  # slot the next pair goes to
-LB_PENDING = 16  # 1: x and rhs of the last direction are saved; the next direction completes a pair
-LB_UPDATES = 17  # friction refreezes (UPDATES) when the last direction was taken
-LB_HELD = 18  # 1: particles were held when the last direction was taken
-LB_RETRY = 19  # 1: the L-BFGS direction was no descent direction; take the global step alone
-LB_RESTARTS = 20  # such restarts in this step
-N_CTL = 21
+LB_UPDATES = 16  # friction refreezes (UPDATES) when the last direction was taken
+LB_HELD = 17  # 1: particles were held when the last direction was taken
+LB_RETRY = 18  # 1: the L-BFGS direction was no descent direction; take the global step alone
+LB_RESTARTS = 19  # such restarts in this step
+N_CTL = 20
 
 # acc: f64 sums over steps since the last stats() call
 A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE, A_LB_RESTARTS = range(9)
