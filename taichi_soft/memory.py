@@ -88,8 +88,12 @@ _SCATTER = _MODEL + _STATE + FieldCounts(3, 0, 2, 0)  # force sums | (k, kd)
 _GATHER = _MODEL + _ADJACENCY + _STATE + FieldCounts(0, 0, 4, 0)  # (k, kd) per spring end
 _PING_PONG = FieldCounts(6, 0, 0, 0)  # one-stage methods with gathered forces: second x, v
 _RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
-_IMPLICIT_EULER = FieldCounts(72, 5, 18, 9)
-_FAST_MASS_SPRING = FieldCounts(64, 5, 9, 9)
+# Implicit solvers (no force-pass buffers), per particle: the objective's 7 vectors and friction
+# block, contact normals, multiplier, end-of-step velocities (43 reals), the PCG's 4 vectors (12),
+# the active-set flags (3 ints); per spring: damper direction and gradient (6 reals).
+_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(55, 3, 6, 0)
+_IMPLICIT_EULER = _IMPLICIT + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
+_FAST_MASS_SPRING = _IMPLICIT + FieldCounts(1, 0, 0, 0)  # diagonal of M + L (L-BFGS pairs: _lbfgs_reals)
 FIELDS = {
     ("semi_implicit_euler", "scatter"): _SCATTER,
     ("explicit_euler", "scatter"): _SCATTER,

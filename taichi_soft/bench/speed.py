@@ -12,6 +12,7 @@ import time
 
 import taichi as ti
 
+from ..forces import SLAB_STRIDE
 from ..integrators import REGISTRY
 from ..scene import load_scene
 from ..simulation import Simulation
@@ -215,7 +216,7 @@ _OVERLAP = {}  # this process's overlap kernel, its argument field (compiled onc
 def _overlap_kernel():
     """(kernel, arg): the kernel runs arg[0] tasks of one parallel loop, each spinning arg[1] times."""
     if not _OVERLAP:
-        stride = 1024  # one real task per 1024 iterations (Taichi's CPU tasks are 512-1024 iterations)
+        stride = SLAB_STRIDE  # one real task per stride iterations, as the parallel scatter's slabs
         sink = ti.field(ti.f32, 2)
         arg = ti.field(ti.i32, 2)  # tasks, spin count (fields: this module's annotations are strings)
 
