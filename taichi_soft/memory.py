@@ -90,8 +90,10 @@ _PING_PONG = FieldCounts(6, 0, 0, 0)  # one-stage methods with gathered forces: 
 _RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
 # Implicit solvers (no force-pass buffers), per particle: the objective's 7 vectors and friction
 # block, contact normals, multiplier, end-of-step velocities (43 reals), the PCG's 4 vectors (12),
-# the active-set flags (3 ints); per spring: damper direction and gradient (6 reals).
-_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(55, 3, 6, 0)
+# restitution's prescribed change, right-hand side and response (9), the scheme's base point and
+# the last step's end state (9), the active-set flags (3 ints); per spring: damper direction and
+# gradient (6 reals).
+_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(73, 3, 6, 0)
 _IMPLICIT_EULER = _IMPLICIT + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
 _FAST_MASS_SPRING = _IMPLICIT + FieldCounts(1, 0, 0, 0)  # diagonal of M + L (L-BFGS pairs: _lbfgs_reals)
 FIELDS = {

@@ -25,10 +25,12 @@ from ..base import Integrator
 from . import slots as S
 from .contact import ContactSet
 from .objective import Objective
+from .restitution import SpreadBounce
+from .scheme import StepScheme
 
 
 @ti.data_oriented
-class ImplicitIntegrator(Objective, ContactSet, Integrator):
+class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
@@ -45,6 +47,8 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         super().__init__(model, terrain, options)
         self._init_objective(model)
         self._init_contact()
+        self._init_restitution()
+        self._init_scheme(self.options["scheme"] == "bdf2")
         n = self.n
         o = self.options
         self.v_new = ti.Vector.field(3, float, n)  # velocity from the solve [m/s]
@@ -63,7 +67,9 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.ew_forcing = ti.field(ti.i32, ())  # 1: Eisenstat-Walker forcing term
         self.velocity_tol = ti.field(float, ())  # [m/s]
         self.clamp_on = ti.field(ti.i32, ())
-        self.tol2 = ti.field(float, ())  # tolerance on RES2, from the option in m/s^2 (see advance)
+        self.tol2 = ti.field(float, ())  # tolerance on RES2 for this step's h_eff (see _begin_step)
+        self.tol_acc = ti.field(float, ())  # the solver's residual tolerance [m/s^2]
+        self.tol_acc[None] = self._tol()
         self.roundoff = ti.field(float, ())  # relative objective noise the line search ignores
         self.roundoff[None] = 16 * np.finfo(model.real).eps
         self.energy_tol = ti.field(float, ())  # relative energy growth counted as round-off
@@ -105,12 +111,23 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     # -- phase 1: begin ---------------------------------------------------------------------------
     @ti.func
     def _begin_step(self, x: ti.template(), v: ti.template(), dt):
+        """Start a step of h = dt: the scheme (scheme.py) sets y, x_base and h_eff, the step every
+        term of the objective uses (h, or 2 h / 3 for BDF2)."""
         m = self.model
+        self._choose_scheme(x, v, dt)
+        he = self.h_eff[None]
         self.sc[S.H2_PREV] = self.h2[None]  # the multipliers kept in lam are for this h^2
-        self.h2[None] = dt * dt
-        self.fric_eps[None] = self.friction_velocity[None] * dt
+        self.h2[None] = he * he
+        self.tol2[None] = (self.tol_acc[None] * he * he) ** 2 * self.total_mass[None]
+        self.fric_eps[None] = self.friction_velocity[None] * he
         for s in range(m.n_springs):
-            d = x[m.spring_ends[s][0]] - x[m.spring_ends[s][1]]
+            # The damper direction, frozen over the step: at x_n for backward Euler (a first-order
+            # lag, like the method); at the predictor y = x_{n+1} + O(h^2) for BDF2, or the lag
+            # alone would make it first order.
+            a, b = m.spring_ends[s][0], m.spring_ends[s][1]
+            d = x[a] - x[b]
+            if self.bdf2_step[None]:
+                d = self.y[a] - self.y[b]
             length = d.norm()
             self.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
         self.sc[S.T_MAX] = 1.0
@@ -122,19 +139,16 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             self.v_prev[i] = v[i]
             self.grad[i] = ti.Vector.zero(float, 3)
             self.fric_hess[i] = ti.Matrix.zero(float, 3, 3)
-            d = dt * v[i]
+            d = self.y[i] - xi
             if self._free(i):
-                d += dt * dt * m.gravity[None]
                 mi = m.mass[i]
                 self.sc[S.K_START] += 0.5 * mi * v[i].dot(v[i])
                 self.sc[S.G_START] -= mi * m.gravity[None].dot(xi)
-                self.y[i] = xi + d
                 if ti.static(self.terrain.has_contact):
-                    d = self._start_direction(i, xi, d, dt)
+                    d = self._start_direction(i, xi, d, he)
                 self.dx[i] = d
             else:
-                self.y[i] = xi + d
-                x[i] = xi + d  # pinned: moves with its own velocity, never solved for
+                x[i] = self.y[i]  # pinned: moves with its own velocity, never solved for
                 self.dx[i] = ti.Vector.zero(float, 3)
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = 0
@@ -261,6 +275,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.acc[S.A_CLAMPED] += ti.cast(self.ctl[S.CLAMPED], ti.f64)
         self.acc[S.A_BOUNCE] += ti.cast(self.ctl[S.BOUNCE_LIMITED], ti.f64)
         self.acc[S.A_LB_RESTARTS] += ti.cast(self.ctl[S.LB_RESTARTS], ti.f64)
+        self.acc[S.A_BDF2] += ti.cast(self.bdf2_step[None], ti.f64)
 
     # -- the serial driver (inside the kernel that runs many steps) ------------------------------
     # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so
@@ -292,8 +307,9 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
         self._begin_step(x, v, dt)
-        self._solve(x, dt)
-        self._end_step(x, v, dt, step)
+        he = self.h_eff[None]
+        self._solve(x, he)
+        self._end_step(x, v, he, step)
 
     # -- the parallel driver (Python sequences the same phases, one launch each) -----------------
     def _solve_python(self, x, dt):
@@ -342,41 +358,71 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     def _k_after_direction(self):
         self._after_direction()
 
+    def _end_python(self, x, v, dt, step):
+        self._k_end_velocities(x, dt)
+        if self.terrain.has_contact:
+            self._bounce_spread_python()
+        self._k_end_finish(x, v, step)
+
     @ti.kernel
-    def _k_end(self, x: ti.template(), v: ti.template(), dt: float, step: ti.i32):
-        self._end_step(x, v, dt, step)
+    def _k_end_velocities(self, x: ti.template(), dt: float):
+        self._end_velocities(x, dt)
+
+    @ti.kernel
+    def _k_end_finish(self, x: ti.template(), v: ti.template(), step: ti.i32):
+        self._end_finish(x, v, step)
 
     # -- phase 4: end --------------------------------------------------------------------------------
     @ti.func
     def _end_step(self, x: ti.template(), v: ti.template(), dt, step):
-        """v = (x - x_n)/h; restitution scaled to the energy the step lost; ``_finish``; then, if the
-        step still ends with more energy than it began with (beyond round-off), the counted clamp."""
+        """v = (x - x_n)/h; restitution as a velocity step through the body (restitution.py), scaled
+        to the energy the step lost; ``_finish``; then, if the step still ends with more energy than
+        it began with (beyond round-off), the counted clamp."""
+        self._end_velocities(x, dt)
+        if ti.static(self.terrain.has_contact):
+            self._bounce_spread()
+        self._end_finish(x, v, step)
+
+    @ti.func
+    def _end_velocities(self, x: ti.template(), dt):
+        """Solved velocities, and the restitution each held particle asks for (its normal part
+        prescribed for the spread, the tangential friction loss kept local)."""
         m = self.model
-        g = m.gravity[None]
-        self.sc[S.BOUNCE_A] = 0.0
-        self.sc[S.BOUNCE_B] = 0.0
         self.sc[S.K_SOLVE] = 0.0
         self.sc[S.G_END] = 0.0
+        self.sc[S.N_BOUNCE] = 0.0
         for i in range(self.n):
-            vi = (x[i] - self.x_prev[i]) / dt
+            vi = (x[i] - self.x_base[i]) / dt  # dt: this step's h_eff
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
-                delta = self._bounce(i, vi)
+                delta = self._bounce_split(i, self._bounce(i, vi))
             self.v_new[i] = vi
             self.dv[i] = delta
             if self._free(i):
-                mi = m.mass[i]
-                self.sc[S.K_SOLVE] += 0.5 * mi * vi.dot(vi)
-                self.sc[S.BOUNCE_A] += 0.5 * mi * delta.dot(delta)
-                self.sc[S.BOUNCE_B] += mi * vi.dot(delta)
-                self.sc[S.G_END] -= mi * g.dot(x[i])
+                self.sc[S.K_SOLVE] += 0.5 * m.mass[i] * vi.dot(vi)
+                self.sc[S.G_END] -= m.mass[i] * m.gravity[None].dot(x[i])
+
+    @ti.func
+    def _end_finish(self, x: ti.template(), v: ti.template(), step):
+        m = self.model
         scale = ti.cast(1.0, float)
         if ti.static(self.terrain.has_contact):
+            self.sc[S.BOUNCE_A] = 0.0
+            self.sc[S.BOUNCE_B] = 0.0
+            for i in range(self.n):
+                delta = self._bounce_total(i)
+                self.dv[i] = delta
+                if self._free(i):
+                    self.sc[S.BOUNCE_A] += 0.5 * m.mass[i] * delta.dot(delta)
+                    self.sc[S.BOUNCE_B] += m.mass[i] * self.v_new[i].dot(delta)
             lost = self.sc[S.H_START] - (self.sc[S.K_SOLVE] + self.sc[S.G_END] + self.sc[S.E_CUR])
             scale = self._bounce_scale(lost)
         self.sc[S.K_END] = 0.0
         for i in range(self.n):
-            self._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
+            vi = self.v_new[i]
+            if ti.static(self.terrain.has_contact):
+                vi += scale * self.dv[i]
+            self._finish(i, x, v, x[i], vi, step)
             if self._free(i):
                 self.sc[S.K_END] += 0.5 * m.mass[i] * v[i].dot(v[i])
         # Last resort, counted in stats(): take the excess out of the kinetic energy.
@@ -390,20 +436,21 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         for i in range(self.n):
             if f < 1.0 and self._free(i):
                 v[i] *= f
+        self._record_history(x, v)
         self._account()
 
     # -- public API -----------------------------------------------------------------------------------
     def advance(self, state, dt: float, n_steps: int) -> int:
         self._sync_masses()
-        self.tol2[None] = (self._tol() * dt * dt) ** 2 * float(self.total_mass[None])
         self._prepare(dt)
         if self._serial() or n_steps <= 0 or self.diverged:
             return super().advance(state, dt, n_steps)
         start = self._step_counter
         for k in range(n_steps):
             self._k_begin(state.x, state.v, dt)
-            self._solve_python(state.x, dt)
-            self._k_end(state.x, state.v, dt, start + k)
+            he = float(self.h_eff[None])
+            self._solve_python(state.x, he)
+            self._end_python(state.x, state.v, he, start + k)
             if self._has_contacts():
                 self._k_body_contacts(state.x, state.v, dt)  # every step ends with body contacts
             if self.diverged:
@@ -424,6 +471,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.acc.fill(0)
         self.lam.fill(0)  # no warm start from before the reset
         self.n_history[None] = 0
+        self.history_ok[None] = 0  # BDF2 starts its history again
 
     def residual(self) -> float:
         """Residual [m/s^2] of the last gradient evaluation (see ``_residual``)."""
@@ -488,4 +536,5 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             "friction_updates_per_step": a[S.A_UPDATES] / steps,
             "energy_clamped_steps": int(a[S.A_CLAMPED]),
             "restitution_limited_steps": int(a[S.A_BOUNCE]),
+            "bdf2_steps": int(a[S.A_BDF2]),
         }

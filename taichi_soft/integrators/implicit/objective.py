@@ -59,7 +59,7 @@ class Objective:
         with no curvature along u_t, would; it is PSD and continuous at eps.
         """
         tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-        u = tp @ (xi - self.x_prev[i])
+        u = tp @ (xi - self.x_base[i])
         sl = u.norm()
         eps = self.fric_eps[None]
         c = self.terrain.friction[None] * lam
@@ -84,7 +84,7 @@ class Objective:
         grp = m.spring_group[s]
         ge, he = spring_energy_derivatives(m, x, a, b, m.spring_rest[s], grp)
         l = self.spring_dir[s]
-        u = (x[a] - self.x_prev[a]) - (x[b] - self.x_prev[b])
+        u = (x[a] - self.x_base[a]) - (x[b] - self.x_base[b])
         kd = m.group_kd[grp]
         return dt * dt * ge + (dt * kd * l.dot(u)) * l, dt * dt * he + (dt * kd) * l.outer_product(l)
 
@@ -157,7 +157,7 @@ class Objective:
         for s in range(m.n_springs):
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             grp = m.spring_group[s]
-            u = (self.x_trial[a] - self.x_prev[a]) - (self.x_trial[b] - self.x_prev[b])
+            u = (self.x_trial[a] - self.x_base[a]) - (self.x_trial[b] - self.x_base[b])
             lu = self.spring_dir[s].dot(u)
             es = spring_energy(m, self.x_trial, a, b, m.spring_rest[s], grp)
             self.sc[S.E_TRIAL] += es

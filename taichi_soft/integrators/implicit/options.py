@@ -37,6 +37,9 @@ def _bool(v):
 
 # Options of both solvers: contact, line search, stopping, the last-resort energy clamp.
 SHARED = {
+    "scheme": Option("backward_euler", lambda v: v in ("bdf2", "backward_euler"), "bdf2 or backward_euler",
+                     "time discretisation: bdf2 (second order) on steps whose history is smooth and that touch "
+                     "no terrain, backward Euler elsewhere; backward_euler (first order) on every step"),
     "friction_velocity": Option(1e-3, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
                                 "sliding speed [m/s] below which friction is smoothed (static-friction creep)"),
     "velocity_tol": Option(1e-3, _number_in(0.0, 1e3), "a number in [0, 1000]",

@@ -31,7 +31,9 @@ K_SOLVE = 21  # kinetic energy of the solved velocities [J]
 G_END = 22  # gravity energy at the end [J]
 K_END = 23  # kinetic energy after the collision response [J]
 H2_PREV = 24  # h^2 of the previous step [s^2] (the multipliers kept for the warm start are in its units)
-N_SC = 25
+N_BOUNCE = 25  # held particles given a restitution velocity in this step's end
+DT_STEP = 26  # h of this step [s] (the scheme's h_eff may be 2 h / 3)
+N_SC = 27
 
 # ctl: ints
 DONE = 0  # 1: the step's iteration is over
@@ -58,8 +60,8 @@ LB_RESTARTS = 19  # such restarts in this step
 N_CTL = 20
 
 # acc: f64 sums over steps since the last stats() call
-A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE, A_LB_RESTARTS = range(9)
-N_ACC = 9
+A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE, A_LB_RESTARTS, A_BDF2 = range(10)
+N_ACC = 10
 
 START_HALVINGS = 3  # most halvings of the feasible start fraction before starting at x_n
 RES_HISTORY = 64  # residuals of the last step's gradient evaluations kept for inspection
