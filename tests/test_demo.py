@@ -296,3 +296,30 @@ def test_demo_without_a_display_says_so_in_one_line(tmp_path):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "display" in lines[0] and "run --video" in lines[0], proc.stderr
+
+
+def test_duration_stops_the_demo_there_and_r_restarts(fresh):
+    """Issue 24: `demo --duration` was accepted and ignored; the simulation now stops at it."""
+    fresh.settings.duration = 0.05
+    try:
+        assert fresh.step(1000) == 50
+        assert fresh.sim.time == pytest.approx(0.05) and fresh.message is None
+        assert fresh.step(10) == 0 and fresh.sim.time == pytest.approx(0.05)
+        assert fresh.message.startswith("stopped at t = 0.050 s, the end of --duration 0.05 s") and fresh.settings.paused
+        fresh.reset()
+        assert fresh.message is None and fresh.step(20) == 20
+    finally:
+        fresh.settings.duration = None
+
+
+def test_demo_passes_its_duration_to_the_window(monkeypatch):
+    from taichi_soft import cli
+    from taichi_soft.demo import app
+
+    seen = {}
+    monkeypatch.setattr(cli, "start_taichi", lambda args: None)
+    monkeypatch.setattr(app, "run_demo", lambda *a, **kw: seen.update(kw))
+    assert cli.main(["demo", "--set", "body.0.n=3", "--duration", "0.25"]) == 0
+    assert seen["duration"] == 0.25
+    assert cli.main(["demo", "--set", "body.0.n=3"]) == 0
+    assert seen["duration"] is None  # no --duration: the demo runs on (the scene's duration is for `run`)
