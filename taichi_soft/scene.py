@@ -19,7 +19,15 @@ from .terrain import CONTACT_DEFAULTS
 from .terrain import DEFAULTS as TERRAIN_DEFAULTS
 from .terrain import KINDS as TERRAIN_KINDS
 
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+def _scenes_dir() -> Path:
+    """The scene folder: the checkout's top-level scenes/, or the installed package data
+    taichi_soft/scenes (``pip install .`` maps the one onto the other, see pyproject.toml)."""
+    here = Path(__file__).resolve().parent
+    checkout = here.parent / "scenes"
+    return checkout if (checkout / "plane.toml").is_file() else here / "scenes"
+
+
+SCENES_DIR = _scenes_dir()
 
 SIM_DEFAULTS = {"integrator": "semi_implicit_euler", "dt": 0.001, "duration": 5.0, "gravity": [0.0, -9.8, 0.0]}
 # Body defaults: the fields of model.BodySpec (their one home) in the scene's layout.
