@@ -404,7 +404,7 @@ def cmd_compare(args) -> int:
         if r.diverged_at is not None:
             state = f"diverged at t = {r.diverged_at:.4f} s (step {r.diverged_step})"
         else:
-            state = f"ran to t = {r.final_time:.3f} s, final energy {r.final_energy:.6g} J"
+            state = f"ran to t = {r.final_time:.3f} s, energy change since t = 0 {r.final_energy:+.6g} J"
         print(f"{r.integrator:22s} dt = {comparison.dt:g} s: {state}")
     _print_outputs(zip(("video", "frames"), (render_options.video, render_options.frames)))
     return EXIT_OK

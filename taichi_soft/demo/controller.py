@@ -69,12 +69,17 @@ class EnergyHistory:
 
     t: list = field(default_factory=list)
     values: dict = field(default_factory=lambda: {k: [] for k in ENERGY_KEYS})
+    # The energies of the first sample since the last clear (the start, t = 0): the HUD shows
+    # changes from them, which do not depend on where gravity's zero is.
+    start: dict | None = None
 
     def add(self, time: float, measures: dict):
         """Append a sample at simulated ``time`` [s]; a sample at the time already last is not
         added again (a paused demo keeps the history it had when paused)."""
         if self.t and self.t[-1] == time:
             return
+        if self.start is None:
+            self.start = {k: measures[k] for k in ENERGY_KEYS}
         self.t.append(time)
         for k in ENERGY_KEYS:
             self.values[k].append(measures[k])
@@ -84,6 +89,7 @@ class EnergyHistory:
                 del self.values[k][0]
 
     def clear(self):
+        self.start = None
         self.t.clear()
         for k in ENERGY_KEYS:
             self.values[k].clear()
