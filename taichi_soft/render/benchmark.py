@@ -5,8 +5,10 @@
 
 For each scene, resolution and renderer: one frame of the scene mid-motion (1.2 s in), each
 stage timed alone after a warm-up (Taichi compiles kernels and GGUI builds pipelines on first
-use), medians over the repeats, wall clock and CPU time of the whole process (all its threads:
-Taichi's, lavapipe's; the CPU figure moves less when other programs share the cores):
+use), the stages in turn round after round, medians over the rounds, wall clock and CPU time of
+the whole process (all its threads: Taichi's, lavapipe's; the CPU figure moves less when other
+programs share the cores, and a frame whose CPU time is under a budget fits that budget in wall
+time on one idle core):
 
 - update + lighting: surface positions and normals, lighting per vertex (``lighting.shade``)
 - draw: GGUI draw and read-back (float32; GGUI draws inside its read-back call), also with GGUI
@@ -32,21 +34,25 @@ import time
 from pathlib import Path
 
 
-def _median_ms(fn, repeats: int, warmup: int = 3) -> tuple[float, float]:
-    """(wall, process CPU) medians of ``fn()`` in ms; ``ti.sync()`` before each clock read."""
+def _interleaved_ms(stages: dict, repeats: int, warmup: int = 3) -> dict:
+    """{name: (wall, process CPU) medians in ms} of each ``stages[name]()``, the stages timed in
+    turn, round after round (a load that drifts hits all of them alike); ``ti.sync()`` before
+    each clock read."""
     import taichi as ti
 
-    for _ in range(warmup):
-        fn()
-    ti.sync()
-    wall, cpu = [], []
+    for fn in stages.values():
+        for _ in range(warmup):
+            fn()
+    samples = {name: ([], []) for name in stages}
     for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        ti.sync()
-        wall.append(1000 * (time.perf_counter() - t0))
-        cpu.append(1000 * (time.process_time() - c0))
-    return statistics.median(wall), statistics.median(cpu)
+        for name, fn in stages.items():
+            ti.sync()
+            t0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            ti.sync()
+            samples[name][0].append(1000 * (time.perf_counter() - t0))
+            samples[name][1].append(1000 * (time.process_time() - c0))
+    return {name: (statistics.median(w), statistics.median(c)) for name, (w, c) in samples.items()}
 
 
 def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
@@ -98,12 +104,12 @@ def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
     video = VideoFile(Path(tmp) / f"bench-{kind}.mp4", 30.0, (width, height))
     stages["overlay (Pillow)"] = lambda: overlay.draw_info(image.copy(), lines)
     stages["encode (to ffmpeg's pipe)"] = lambda: video.add(image, 0)
-    times = {name: _median_ms(fn, repeats) for name, fn in stages.items()}
+    stages["whole frame (render)"] = lambda: renderer.render(view, cam)
+    stages["simulation (1/30 s, 33 steps)"] = lambda: sim.advance(33)
+    times = _interleaved_ms(stages, repeats)
     if kind == "taichi":  # the triangle pass was timed with a resolve after it (keys must be reset)
         d, r = times["draw (triangle pass)"], times["read-back (resolve to uint8)"]
         times["draw (triangle pass)"] = (d[0] - r[0], d[1] - r[1])
-    times["whole frame (render)"] = _median_ms(lambda: renderer.render(view, cam), repeats)
-    times["simulation (1/30 s, 33 steps)"] = _median_ms(lambda: sim.advance(33), max(5, repeats // 3), warmup=1)
 
     # The pipeline as in a run: main thread simulates and renders, the writer overlays and encodes.
     def write(item):
