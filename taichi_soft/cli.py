@@ -151,7 +151,9 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
     """Flags for offscreen rendering (docs/rendering.md)."""
     from .render.export import MESH_FORMATS
 
-    g = p.add_argument_group("rendering (offscreen GGUI; needs a Vulkan device, Mesa's lavapipe will do)")
+    from .render.choose import RENDERERS
+
+    g = p.add_argument_group("rendering (offscreen: GGUI on a Vulkan GPU, else Taichi kernels on the CPU)")
     g.add_argument("--video", metavar="PATH", help="write a video: .mp4 (H.264, yuv420p) or .gif")
     g.add_argument("--frames", metavar="DIR", help="write numbered PNGs DIR/frame_00000.png ...")
     g.add_argument("--fps", type=_float_arg("--fps"), help="output frames per simulated second (default: the scene's render.fps)")
@@ -163,6 +165,9 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
     g.add_argument("--follow", action=argparse.BooleanOptionalAction, default=None,
                    help="camera tracks the bodies' centre of mass (default: on tilted_plane and sphere, where they travel far)")
     g.add_argument("--no-overlay", dest="overlay", action="store_false", help="leave the text overlay out of frames")
+    g.add_argument("--renderer", choices=RENDERERS, default="auto",
+                   help="ggui: GGUI through Vulkan; taichi: Taichi kernels, no Vulkan needed, surfaces only; "
+                        "auto (default): ggui on a Vulkan GPU or for --particles/--springs, else taichi")
     if mesh_export:
         g.add_argument("--export-mesh", metavar="DIR",
                        help="write each frame's surface mesh to DIR/mesh_00000.<fmt>, all bodies merged in one "
@@ -174,17 +179,20 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
 def render_options_from_args(args, scene):
     """Validated ``RenderOptions``: output paths checked (and parents created) before any simulation."""
     from .render.outputs import VIDEO_SUFFIXES, check_video_size
+    from .render.choose import choose_renderer
     from .render.recorder import RenderOptions
 
     render = scene.data["render"]
     width, height = render["resolution"]
     video = check_output_path(args.video, "--video", VIDEO_SUFFIXES)
     check_video_size(video, width, height)
+    choose_renderer(args.renderer, args.particles or args.springs)  # a bad combination: exit 2 now
     return RenderOptions(
         video=video, frames=check_output_dir(args.frames, "--frames"),
         mesh_dir=check_output_dir(getattr(args, "export_mesh", None), "--export-mesh"),
         mesh_format=getattr(args, "mesh_format", "ply"), fps=render["fps"], resolution=(width, height),
-        surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay)
+        surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay,
+        renderer=args.renderer)
 
 
 def _resolution_arg(text):

@@ -31,6 +31,7 @@ class RenderOptions:
     springs: bool = False
     follow: bool | None = None  # None: the terrain's default
     overlay: bool = True
+    renderer: str = "auto"  # "auto", "ggui" or "taichi" (render.choose)
 
     @property
     def needs_renderer(self) -> bool:
@@ -57,9 +58,10 @@ class FrameRecorder(FrameJob):
         self.renderer = self.view = self.writer = None
         self.image_sinks, self.mesh_sinks = [], []
         if options.needs_renderer:
-            from .renderer import Renderer, SimulationView
+            from .choose import make_renderer
+            from .renderer import SimulationView
 
-            self.renderer = Renderer(width, height)
+            self.renderer = make_renderer(width, height, options.renderer, options.particles or options.springs)
         try:
             if self.renderer is not None:
                 self.view = SimulationView(sim, options.surface, options.particles, options.springs)
