@@ -294,8 +294,10 @@ def test_springs_and_particles_toggle(renderer):
 
 def test_overlay_shows_time_and_changes_with_it():
     info = overlay.RunInfo("plane", "rk4", 0.001, "2000 N/m", "60 N s/m")
-    first, later = info.lines(0.0, 88200.0), info.lines(1.25, 61000.5)
-    assert "t =   0.000 s" in first[2] and "E = 88200.0 J" in first[2] and "rk4" in first[0]
+    first, later = info.lines(0.0, 0.0), info.lines(1.25, -27199.5)
+    # issue 24: the change since t = 0, not the total against y = 0 (88 kJ at the default drop's start)
+    assert "t =   0.000 s" in first[2] and "E - E(0) = +0.0 J" in first[2] and "rk4" in first[0]
+    assert "E - E(0) = -27200 J" in later[2] and overlay.energy_text(-12.34) == "-12.3 J"
     a = np.full((72, 128, 3), 200, np.uint8)
     b = a.copy()
     overlay.draw_info(a, first)
@@ -307,7 +309,7 @@ def test_overlay_shows_time_and_changes_with_it():
 
 def test_compare_tile_labels_scale_with_the_tile():
     """Sub-labels of a 640 x 360 mosaic of four tiles were 8-px type (about 6 px of glyph)."""
-    subtitle = "dt = 0.002 s | t = 1.500 s | E = 42760.5 J"
+    subtitle = "dt = 0.002 s | t = 1.500 s | E - E(0) = -42761 J"
     sizes = {(w, h): overlay.title_sizes(h, w, "semi_implicit_euler", subtitle) for w, h in ((320, 180), (640, 360))}
     assert sizes[(320, 180)][1] >= 10 and sizes[(640, 360)][1] > sizes[(320, 180)][1]
     for (w, h), (big, small) in sizes.items():

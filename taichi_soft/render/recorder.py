@@ -79,6 +79,7 @@ class FrameRecorder(FrameJob):
             self.abort()
             raise
         self.frames = 0
+        self.energy0: float | None = None  # total energy [J] at the first frame, the overlay's zero
         self.last = None  # (image, overlay lines) of the last good frame
         self.diverged_at: float | None = None
 
@@ -89,7 +90,9 @@ class FrameRecorder(FrameJob):
             self.diverged_at = sim.diverged_at
             return
         m = sim.measure()
-        lines = self.info.lines(sim.time, m["total_energy"])
+        if self.energy0 is None:  # the first frame is the start (t = 0)
+            self.energy0 = m["total_energy"]
+        lines = self.info.lines(sim.time, m["total_energy"] - self.energy0)
         image = mesh = None
         if self.renderer is not None:
             image = self.renderer.render(self.view, self.camera.following(m["center_of_mass"]))
