@@ -1,9 +1,11 @@
-"""Offscreen GGUI rendering: one hidden window, any number of simulations drawn into it.
+"""Offscreen rendering: any number of simulations drawn by one renderer.
 
-``Renderer(width, height)`` owns the window (Taichi must be initialised first; GGUI brings up
-its own Vulkan device, also with ``arch=cpu``). ``SimulationView(sim)`` holds what one
-simulation draws: its surface mesh, terrain meshes and optional particles and springs.
-``renderer.render(view, camera)`` returns the frame as uint8 RGB [height, width, 3].
+``SimulationView(sim)`` holds what one simulation draws: its surface mesh, terrain meshes and
+optional particles and springs, lit per vertex (``lighting.py``). Two renderers draw views
+(Taichi must be initialised first), both with ``render(view, camera)`` returning the frame as
+uint8 RGB [height, width, 3]: ``Renderer(width, height)`` owns a hidden GGUI window (GGUI brings
+up its own Vulkan device, also with ``arch=cpu``); ``TaichiRenderer(width, height)`` rasterizes
+in Taichi kernels (``raster.py``), surfaces and terrain only. ``choose.make_renderer`` picks one.
 """
 
 from typing import NamedTuple
