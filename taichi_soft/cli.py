@@ -209,7 +209,7 @@ def cmd_run(args) -> int:
     import numpy as np
 
     from .progress import CountBar
-    from .simulation import Simulation, states_arrays, step_count
+    from .simulation import Simulation, body_lines, states_arrays, step_count
 
     scene = load_scene_from_args(args)
     check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
@@ -218,6 +218,8 @@ def cmd_run(args) -> int:
     render_options = render_options_from_args(args, scene)
     start_taichi(args)
     sim = Simulation(scene)
+    for line in body_lines(sim.model):
+        print(line)
     duration = scene.sim["duration"]
     fps = scene.data["render"]["fps"]
     label = f"{scene.label}/{sim.integrator_name}"
