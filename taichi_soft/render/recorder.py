@@ -50,7 +50,7 @@ class FrameRecorder(FrameJob):
 
     def __init__(self, sim, options: RenderOptions, progress=None):
         from .camera import scene_camera
-        from .meshes import SurfaceMesh
+        from .embedded import body_surface
 
         self.sim, self.options, self.progress = sim, options, progress
         width, height = options.resolution
@@ -63,7 +63,7 @@ class FrameRecorder(FrameJob):
         try:
             if self.renderer is not None:
                 self.view = SimulationView(sim, options.surface, options.particles, options.springs)
-            self.surface = self.view.surface if self.view else SurfaceMesh(sim.model)
+            self.surface = self.view.surface if self.view else body_surface(sim.model)
             self.camera = scene_camera(sim.scene.data, width / height, options.follow,
                                        overlay.INFO_MARGIN if options.overlay else 0.0)
             self.info = overlay.run_info(sim)
