@@ -133,6 +133,13 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
                             "file per frame (PLY: a 'body' index per vertex; OBJ: one object per body); "
                             "needs no Vulkan")
         g.add_argument("--mesh-format", choices=MESH_FORMATS, default="ply", help="mesh file format (default: ply)")
+        g.add_argument("--export-usd", metavar="PATH",
+                       help="write one USD stage (.usd, .usda or .usdc): each body a mesh with its points sampled "
+                            "once per frame, the terrain static, Y up, metres (Blender, Houdini: docs/rendering.md); "
+                            "needs no Vulkan")
+        g.add_argument("--export-pc2", metavar="DIR",
+                       help="write DIR/body_<b>.pc2 (Point Cache 2, one sample per frame) and the rest-pose "
+                            "DIR/body_<b>.obj per body, for Blender's Mesh Cache modifier; needs no Vulkan")
 
 
 def render_options_from_args(args, scene):
@@ -144,9 +151,16 @@ def render_options_from_args(args, scene):
     width, height = render["resolution"]
     video = check_output_path(args.video, "--video", VIDEO_SUFFIXES)
     check_video_size(video, width, height)
+    usd = getattr(args, "export_usd", None)
+    if usd is not None:
+        from .render.caches import USD_SUFFIXES, require_usd
+
+        usd = check_output_path(usd, "--export-usd", USD_SUFFIXES)
+        require_usd()
     return RenderOptions(
         video=video, frames=check_output_dir(args.frames, "--frames"),
         mesh_dir=check_output_dir(getattr(args, "export_mesh", None), "--export-mesh"),
+        usd=usd, pc2_dir=check_output_dir(getattr(args, "export_pc2", None), "--export-pc2"),
         mesh_format=getattr(args, "mesh_format", "ply"), fps=render["fps"], resolution=(width, height),
         surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay)
 
@@ -258,7 +272,7 @@ def cmd_run(args) -> int:
     if recorder is not None:
         try:
             recorder.finish()
-            written += list(zip(("video", "frames", "meshes"), _render_paths(render_options)))
+            written += list(zip(("video", "frames", "meshes", "usd", "pc2"), _render_paths(render_options)))
         except OutputError as e:
             failures.append(str(e))
     summary = sim.summary(result)
@@ -309,7 +323,7 @@ def _write_output(label: str, path: Path, write, written: list) -> list[str]:
 
 
 def _render_paths(options) -> list:
-    return [options.video, options.frames, options.mesh_dir]
+    return [options.video, options.frames, options.mesh_dir, options.usd, options.pc2_dir]
 
 
 def _print_outputs(labelled):
