@@ -402,11 +402,22 @@ def cmd_bench(args) -> int:
                      kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
-    if args.study in ("speed", "memory") and (args.workers is not None or args.scheduler is not None):
+    if args.study in ("speed", "memory", "mesh") and (args.workers is not None or args.scheduler is not None):
         raise UserError(f"bench {args.study} runs one configuration at a time (its measurements need a quiet "
                         "machine); --workers/--scheduler apply to the accuracy and stability sweeps")
     default = "out/benchmarks-quick" if args.quick else "docs/benchmarks"
     out_dir = check_output_dir(args.out or default, "--out")
+    if args.study == "mesh":  # mesh-body goals: build time and frame cost (bench/meshbody.py)
+        from .bench import meshbody as mesh_bench
+
+        runtime.init("cpu", "f64")
+        result = mesh_bench.run(repeats=2 if args.quick else 5, frames=5 if args.quick else 20)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        b, f = result["build"], result["frame"]
+        print(f"build {mesh_bench.N}^3 body from {result['triangles']} triangles: {b['median_s']:.2f} s (goal 2 s); "
+              f"frame mesh/cube at 1280x720: {f['mesh_ms']:.1f} / {f['cube_ms']:.1f} ms = {f['ratio']:.2f}x (goal 1.5x)")
+        print(f"wrote {mesh_bench.write_report(result, out_dir)}")
+        return EXIT_OK
     # Before any work: an unreachable --scheduler is refused here, in a few seconds.
     executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -455,13 +466,12 @@ def cmd_bench(args) -> int:
 
 def cmd_gallery(args) -> int:
     """``gallery``: every terrain x integrator video, a compare mosaic per terrain, index.html."""
-    from .bench.report import TERRAINS
-    from .gallery import PAGE, Plan, check_plan, run_gallery
+    from .gallery import DEFAULT_SCENES, PAGE, Plan, check_plan, run_gallery
     from .render.outputs import check_video_size
     from .scene import scene_names
     from .tasks import make_executor, report_failures
 
-    terrains = parse_name_list(args.terrains or ",".join(TERRAINS), "--terrains", scene_names(), "scene",
+    terrains = parse_name_list(args.terrains or ",".join(DEFAULT_SCENES), "--terrains", scene_names(), "scene",
                                "give distinct scene names separated by commas")
     from .integrators import names
 
@@ -540,8 +550,9 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
     p_demo.set_defaults(func=cmd_demo)
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "memory", "report", "speed-worker"],
-                         help="what to measure; report runs all four and writes REPORT.md")
+    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "memory", "report", "mesh", "speed-worker"],
+                         help="what to measure; report runs the first four and writes REPORT.md; mesh: the mesh-body "
+                              "goals (build time, frame cost), MESH.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     add_task_args(p_bench)
@@ -551,7 +562,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_bench.set_defaults(func=cmd_bench)
     p_gal = sub.add_parser("gallery", help="every terrain x integrator video, a compare mosaic per terrain, "
                                               "and an index.html that shows them all")
-    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl)")
+    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl,torus)")
     p_gal.add_argument("--integrators", metavar="A,B", help="comma-separated integrator names (default: all registered)")
     p_gal.add_argument("--duration", type=_float_arg("--duration"), help="simulated time [s] (default: each scene's)")
     p_gal.add_argument("--dt", type=_float_arg("--dt"),
