@@ -168,7 +168,8 @@ def _number(exists: np.ndarray) -> np.ndarray:
 
 
 def _embedding(vertices, points, grid, origin, h):
-    """Per mesh vertex: 8 particle indices and weights (see the module docstring), [nv, 8] each."""
+    """Per mesh vertex: particle indices and weights [nv, 8] (module docstring), [nv, NEAREST]
+    when some vertex lies in a cell that misses corners."""
     from scipy.spatial import cKDTree
 
     dims = np.array(grid.shape)
@@ -185,13 +186,17 @@ def _embedding(vertices, points, grid, origin, h):
     broken = (index < 0).any(axis=1) | np.any(dims < 2)
     if broken.any():
         k = min(NEAREST, len(points))
-        _, near = cKDTree(points).query(vertices[broken], k=k)
+        v = vertices[broken]
+        _, near = cKDTree(points).query(v, k=k)
         near = near.reshape(-1, k)
-        # Minimum-norm affine weights: sum w_i x_i = v and sum w_i = 1 (exact at rest whenever the
-        # k particles are not coplanar), the smallest such w, so no particle dominates needlessly.
-        a = np.concatenate([points[near].transpose(0, 2, 1), np.ones((len(near), 1, k))], axis=1)  # [m, 4, k]
-        b = np.concatenate([vertices[broken], np.ones((len(near), 1))], axis=1)[..., None]  # [m, 4, 1]
-        w = (np.linalg.pinv(a) @ b)[..., 0]
+        # Minimum-norm affine weights: sum w_i (x_i - v) = 0 and sum w_i = 1 (exact at rest whenever
+        # the k particles are not coplanar), the smallest such w, so no particle dominates needlessly:
+        # w = A^T (A A^T)^-1 e4 with A = [x_i - v; 1] (4 x k), a 4 x 4 solve per vertex. The tiny
+        # ridge keeps a coplanar set (a one-layer patch) solvable, as a least-squares fit.
+        a = np.concatenate([(points[near] - v[:, None]).transpose(0, 2, 1) / h, np.ones((len(v), 1, k))], axis=1)
+        gram = a @ a.transpose(0, 2, 1) + 1e-12 * np.eye(4)
+        e4 = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]), (len(v), 4))
+        w = (a.transpose(0, 2, 1) @ np.linalg.solve(gram, e4[..., None]))[..., 0]
         if k > 8:  # widen every row: one gather width for the device kernel
             index = np.concatenate([index, np.zeros((len(index), k - 8), np.int64)], axis=1)
             weight = np.concatenate([weight, np.zeros((len(weight), k - 8))], axis=1)

@@ -171,7 +171,7 @@ class ModelBuilder:
             s0 += sum(counts)
         model = Model.__new__(Model)
         model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies)
-        model._lattice = not any(meshes)  # slab ranges by lattice arithmetic only for whole cubes
+        model._lattice = all(m is None for m in meshes)  # slab ranges by lattice arithmetic only for whole cubes
         for b, info in enumerate(bodies):
             spec = info.spec
             if info.mesh is not None:

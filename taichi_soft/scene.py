@@ -302,7 +302,10 @@ def validate(raw: dict, integrator_names=None) -> dict:
 def _validate_shape(key: str, body: dict, given: dict):
     """``shape``, and for a mesh body its ``mesh`` file and ``scale``: the mesh is read and filled
     here (``meshbody``, cached), so a bad or too thin mesh fails before any work, and ``size``
-    becomes the body's longest side [m] whichever of size and scale was given."""
+    becomes the body's longest side [m] whichever of size and scale was given. A body that names
+    a ``mesh`` and no ``shape`` is a mesh body."""
+    if "mesh" in given and "shape" not in given:
+        body["shape"] = "mesh"  # naming a mesh file makes a mesh body (--set body.0.mesh=... on a cube scene)
     shape = body["shape"]
     if shape not in SHAPES:
         raise UserError(f"{key}.shape = {shape!r}: choose one of {', '.join(SHAPES)}")

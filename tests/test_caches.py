@@ -65,5 +65,5 @@ def test_pc2_matches_the_states_and_the_rest_obj(run):
 def test_bad_export_usd_path_exits_2_before_work(cli, tmp_path):
     r = cli("run", "--export-usd", "/proc/out.usd", "--duration", "0.01")
     assert r.returncode == 2 and "--export-usd" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
-    r = cli("run", "--set", "body.0.shape=mesh", "--set", f"body.0.mesh={tmp_path / 'none.obj'}", "--duration", "0.01")
+    r = cli("run", "--set", f"body.0.mesh={tmp_path / 'none.obj'}", "--duration", "0.01")
     assert r.returncode == 2 and "no such file" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

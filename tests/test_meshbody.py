@@ -123,8 +123,10 @@ def test_mesh_cli_path_is_relative_to_the_current_directory(meshes, monkeypatch)
     from taichi_soft.scene import load_scene
 
     monkeypatch.chdir(meshes)
-    s = load_scene("plane", ["body.0.shape=mesh", "body.0.mesh=sphere.stl", "body.0.n=6"])
-    assert s.data["body"][0]["mesh"] == str(meshes / "sphere.stl")
+    s = load_scene("plane", ["body.0.mesh=sphere.stl", "body.0.n=6"])  # a mesh file alone makes a mesh body
+    assert s.data["body"][0]["mesh"] == str(meshes / "sphere.stl") and s.data["body"][0]["shape"] == "mesh"
+    with pytest.raises(UserError, match="only for shape"):
+        load_scene("plane", ["body.0.shape=cube", "body.0.mesh=sphere.stl"])
 
 
 def test_mesh_body_comes_to_rest_on_the_plane(meshes):
