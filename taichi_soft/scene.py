@@ -19,7 +19,15 @@ from .terrain import CONTACT_DEFAULTS
 from .terrain import DEFAULTS as TERRAIN_DEFAULTS
 from .terrain import KINDS as TERRAIN_KINDS
 
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+def _scenes_dir() -> Path:
+    """The scene folder: the checkout's top-level scenes/, or the installed package data
+    taichi_soft/scenes (``pip install .`` maps the one onto the other, see pyproject.toml)."""
+    here = Path(__file__).resolve().parent
+    checkout = here.parent / "scenes"
+    return checkout if (checkout / "plane.toml").is_file() else here / "scenes"
+
+
+SCENES_DIR = _scenes_dir()
 
 SIM_DEFAULTS = {"integrator": "semi_implicit_euler", "dt": 0.001, "duration": 5.0, "gravity": [0.0, -9.8, 0.0]}
 # Body defaults: the fields of model.BodySpec (their one home) in the scene's layout.
@@ -56,12 +64,30 @@ def resolve_scene_path(name_or_path: str) -> Path:
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists() or "/" in name_or_path:
         if not p.is_file():
-            raise UserError(f"scene file {name_or_path!r} does not exist")
+            raise UserError(f"scene file {name_or_path!r} {_what_it_is(p)}; expected a .toml file or a scene name "
+                            f"({', '.join(scene_names())})")
         return p
     candidate = SCENES_DIR / f"{name_or_path}.toml"
     if not candidate.is_file():
         raise UserError(f"unknown scene {name_or_path!r}; choose one of: {', '.join(scene_names())} or a path to a .toml file")
     return candidate
+
+
+def _what_it_is(p: Path) -> str:
+    """What a path that is not a regular file is, for an error message."""
+    if p.is_dir():
+        return "is a directory"
+    if p.is_char_device():
+        return "is a character device, not a file"
+    if p.is_block_device():
+        return "is a block device, not a file"
+    if p.is_fifo():
+        return "is a named pipe, not a file"
+    if p.is_socket():
+        return "is a socket, not a file"
+    if p.is_symlink():
+        return "is a broken symbolic link"
+    return "does not exist"
 
 
 # -- overrides -----------------------------------------------------------------------------

@@ -17,6 +17,8 @@ from .errors import UserError
 from .lattice import SPRING_KINDS, rotation_matrix
 from .forces import Diagnostics
 from .integrators import make_integrator
+from .integrators.implicit.health import assess
+from .integrators.linear_stability import divergence_hint
 from .model import BodySpec, ModelBuilder
 from .scene import Scene
 from .terrain import make_terrain
@@ -193,15 +195,20 @@ class Simulation:
         return RunResult(self.steps - base, self.time, wall, self.diverged, self.diverged_at, self.diverged_step, frames)
 
     def suggest_dt(self) -> float:
-        """A smaller step to try after a divergence: half the current one, rounded down to 2 digits."""
-        d = self.dt / 2
-        exp = math.floor(math.log10(d))
-        return math.floor(d / 10**exp * 10) / 10 * 10**exp
+        """A step [s] to try after a divergence (see ``divergence_hint``)."""
+        return self.divergence_hint()[0]
+
+    def divergence_hint(self) -> tuple[float, str]:
+        """(step [s], one sentence) after a divergence: below the method's linear stability limit
+        for this scene, and the methods that take the current step (``linear_stability``)."""
+        return divergence_hint(self.model, self.integrator_name, self.dt)
 
     def summary(self, result: RunResult) -> dict:
         """The run summary (what ``--summary`` writes)."""
         m = self.model
         final = self.measure()
+        stats = {**self.integrator.stats(), **(self.contacts.stats() if self.contacts else {})}
+        warnings, meaningless = assess(stats)
         return {
             "scene": self.scene.name,
             "integrator": self.integrator_name,
@@ -218,7 +225,9 @@ class Simulation:
             "diverged_at": result.diverged_at,
             "wall_seconds": result.wall_seconds,
             "steps_per_second": result.steps / result.wall_seconds if result.wall_seconds > 0 else None,
-            "integrator_stats": {**self.integrator.stats(), **(self.contacts.stats() if self.contacts else {})},
+            "integrator_stats": stats,
+            "solver_warnings": warnings,
+            "meaningless": meaningless,
             "final": {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in final.items()},
         }
 

@@ -33,6 +33,7 @@ class RenderOptions:
     springs: bool = False
     follow: bool | None = None  # None: the terrain's default
     overlay: bool = True
+    renderer: str = "auto"  # "auto", "ggui" or "taichi" (render.choose)
 
     @property
     def needs_renderer(self) -> bool:
@@ -64,9 +65,10 @@ class FrameRecorder(FrameJob):
         self.renderer = self.view = self.writer = None
         self.image_sinks, self.mesh_sinks = [], []
         if options.needs_renderer:
-            from .renderer import Renderer, SimulationView
+            from .choose import make_renderer
+            from .renderer import SimulationView
 
-            self.renderer = Renderer(width, height)
+            self.renderer = make_renderer(width, height, options.renderer, options.particles or options.springs)
         try:
             if self.renderer is not None:
                 self.view = SimulationView(sim, options.surface, options.particles, options.springs)
@@ -95,6 +97,7 @@ class FrameRecorder(FrameJob):
             self.abort()
             raise
         self.frames = 0
+        self.energy0: float | None = None  # total energy [J] at the first frame, the overlay's zero
         self.last = None  # (image, overlay lines) of the last good frame
         self.diverged_at: float | None = None
 
@@ -105,7 +108,9 @@ class FrameRecorder(FrameJob):
             self.diverged_at = sim.diverged_at
             return
         m = sim.measure()
-        lines = self.info.lines(sim.time, m["total_energy"])
+        if self.energy0 is None:  # the first frame is the start (t = 0)
+            self.energy0 = m["total_energy"]
+        lines = self.info.lines(sim.time, m["total_energy"] - self.energy0)
         image = mesh = None
         if self.renderer is not None:
             image = self.renderer.render(self.view, self.camera.following(m["center_of_mass"]))
