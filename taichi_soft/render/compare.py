@@ -78,13 +78,14 @@ class Comparison(FrameJob):
     def __init__(self, scene, integrators: list[str], options, dt: float | None = None):
         from ..simulation import Simulation
         from .camera import scene_camera
-        from .renderer import Renderer, SimulationView
+        from .choose import make_renderer
+        from .renderer import SimulationView
 
         self.scene, self.options = scene, options
         width, height = options.resolution
         self.cols, self.rows = grid_shape(len(integrators), width, height)
         self.tile_w, self.tile_h = width // self.cols, height // self.rows
-        self.renderer = Renderer(self.tile_w, self.tile_h)
+        self.renderer = make_renderer(self.tile_w, self.tile_h, options.renderer, options.particles or options.springs)
         self.sinks, self.writer = [], None
         try:
             self.tiles = []
