@@ -275,7 +275,7 @@ def cmd_run(args) -> int:
         from .dry_run import describe
 
         outputs = {"--summary": args.summary, "--states": args.states, "--video": args.video, "--frames": args.frames,
-                   "--export-mesh": args.export_mesh}
+                   "--export-mesh": args.export_mesh, "--export-usd": args.export_usd, "--export-pc2": args.export_pc2}
         for line in describe(scene, args.precision, args.arch, outputs, scene.data["render"]["fps"]):
             print(line)
         return EXIT_OK
