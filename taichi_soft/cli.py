@@ -174,6 +174,13 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
                             "file per frame (PLY: a 'body' index per vertex; OBJ: one object per body); "
                             "needs no Vulkan")
         g.add_argument("--mesh-format", choices=MESH_FORMATS, default="ply", help="mesh file format (default: ply)")
+        g.add_argument("--export-usd", metavar="PATH",
+                       help="write one USD stage (.usd, .usda or .usdc): each body a mesh with its points sampled "
+                            "once per frame, the terrain static, Y up, metres (Blender, Houdini: docs/rendering.md); "
+                            "needs no Vulkan")
+        g.add_argument("--export-pc2", metavar="DIR",
+                       help="write DIR/body_<b>.pc2 (Point Cache 2, one sample per frame) and the rest-pose "
+                            "DIR/body_<b>.obj per body, for Blender's Mesh Cache modifier; needs no Vulkan")
 
 
 def render_options_from_args(args, scene):
@@ -187,9 +194,16 @@ def render_options_from_args(args, scene):
     video = check_output_path(args.video, "--video", VIDEO_SUFFIXES)
     check_video_size(video, width, height)
     choose_renderer(args.renderer, args.particles or args.springs)  # a bad combination: exit 2 now
+    usd = getattr(args, "export_usd", None)
+    if usd is not None:
+        from .render.caches import USD_SUFFIXES, require_usd
+
+        usd = check_output_path(usd, "--export-usd", USD_SUFFIXES)
+        require_usd()
     return RenderOptions(
         video=video, frames=check_output_dir(args.frames, "--frames"),
         mesh_dir=check_output_dir(getattr(args, "export_mesh", None), "--export-mesh"),
+        usd=usd, pc2_dir=check_output_dir(getattr(args, "export_pc2", None), "--export-pc2"),
         mesh_format=getattr(args, "mesh_format", "ply"), fps=render["fps"], resolution=(width, height),
         surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay,
         renderer=args.renderer)
@@ -253,7 +267,7 @@ def cmd_run(args) -> int:
     import numpy as np
 
     from .progress import CountBar
-    from .simulation import Simulation, states_arrays, step_count
+    from .simulation import Simulation, body_lines, states_arrays, step_count
 
     scene = load_scene_from_args(args)
     check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
@@ -262,6 +276,8 @@ def cmd_run(args) -> int:
     render_options = render_options_from_args(args, scene)
     start_taichi(args)
     sim = Simulation(scene)
+    for line in body_lines(sim.model):
+        print(line)
     duration = scene.sim["duration"]
     fps = scene.data["render"]["fps"]
     label = f"{scene.label}/{sim.integrator_name}"
@@ -297,7 +313,7 @@ def cmd_run(args) -> int:
     if recorder is not None:
         try:
             recorder.finish()
-            written += list(zip(("video", "frames", "meshes"), _render_paths(render_options)))
+            written += list(zip(("video", "frames", "meshes", "usd", "pc2"), _render_paths(render_options)))
         except OutputError as e:
             failures.append(str(e))
     summary = sim.summary(result)
@@ -354,7 +370,7 @@ def _write_output(label: str, path: Path, write, written: list) -> list[str]:
 
 
 def _render_paths(options) -> list:
-    return [options.video, options.frames, options.mesh_dir]
+    return [options.video, options.frames, options.mesh_dir, options.usd, options.pc2_dir]
 
 
 def _print_outputs(labelled):
@@ -433,11 +449,22 @@ def cmd_bench(args) -> int:
                      kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
-    if args.study in ("speed", "memory") and (args.workers is not None or args.scheduler is not None):
+    if args.study in ("speed", "memory", "mesh") and (args.workers is not None or args.scheduler is not None):
         raise UserError(f"bench {args.study} runs one configuration at a time (its measurements need a quiet "
                         "machine); --workers/--scheduler apply to the accuracy and stability sweeps")
     default = f"{DEFAULT_OUT}/benchmarks-quick" if args.quick else "docs/benchmarks"
     out_dir = check_output_dir(args.out or default, "--out")
+    if args.study == "mesh":  # mesh-body goals: build time and frame cost (bench/meshbody.py)
+        from .bench import meshbody as mesh_bench
+
+        runtime.init("cpu", "f64")
+        result = mesh_bench.run(repeats=2 if args.quick else 5, frames=5 if args.quick else 20)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        b, f = result["build"], result["frame"]
+        print(f"build {mesh_bench.N}^3 body from {result['triangles']} triangles: {b['median_s']:.2f} s wall, {b['cpu_median_s']:.2f} s CPU (goal 2 s); "
+              f"frame mesh/cube at 1280x720: {f['mesh_ms']:.1f} / {f['cube_ms']:.1f} ms = {f['ratio']:.2f}x (goal 1.5x)")
+        print(f"wrote {mesh_bench.write_report(result, out_dir)}")
+        return EXIT_OK
     # Before any work: an unreachable --scheduler is refused here, in a few seconds.
     executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -486,13 +513,12 @@ def cmd_bench(args) -> int:
 
 def cmd_gallery(args) -> int:
     """``gallery``: every terrain x integrator video, a compare mosaic per terrain, index.html."""
-    from .bench.report import TERRAINS
-    from .gallery import PAGE, Plan, check_plan, run_gallery
+    from .gallery import DEFAULT_SCENES, PAGE, Plan, check_plan, run_gallery
     from .render.outputs import check_video_size
     from .scene import scene_names
     from .tasks import make_executor, report_failures
 
-    terrains = parse_name_list(args.terrains or ",".join(TERRAINS), "--terrains", scene_names(), "scene",
+    terrains = parse_name_list(args.terrains or ",".join(DEFAULT_SCENES), "--terrains", scene_names(), "scene",
                                "give distinct scene names separated by commas")
     from .integrators import names
 
@@ -573,8 +599,10 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
     p_demo.set_defaults(func=cmd_demo)
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=_Choices(["accuracy", "stability", "speed", "memory", "report"], hidden=["speed-worker"]),
-                         help="what to measure; report runs all four and writes REPORT.md")
+    p_bench.add_argument("study", choices=_Choices(["accuracy", "stability", "speed", "memory", "report", "mesh"],
+                                                   hidden=["speed-worker"]),
+                         help="what to measure; report runs the first four and writes REPORT.md; mesh: the mesh-body "
+                              "goals (build time, frame cost), MESH.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     add_task_args(p_bench)
@@ -584,7 +612,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_bench.set_defaults(func=cmd_bench)
     p_gal = sub.add_parser("gallery", help="every terrain x integrator video, a compare mosaic per terrain, "
                                               "and an index.html that shows them all")
-    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl)")
+    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl,torus)")
     p_gal.add_argument("--integrators", metavar="A,B", help="comma-separated integrator names (default: all registered)")
     p_gal.add_argument("--duration", type=_float_arg("--duration"), help="simulated time [s] (default: each scene's)")
     p_gal.add_argument("--dt", type=_float_arg("--dt"),

@@ -24,6 +24,8 @@ class RenderOptions:
     frames: Path | None = None
     mesh_dir: Path | None = None
     mesh_format: str = "ply"
+    usd: Path | None = None  # --export-usd (caches.UsdCache)
+    pc2_dir: Path | None = None  # --export-pc2 (caches.Pc2Cache)
     fps: float = 30.0  # output frames per simulated second
     resolution: tuple = (1280, 720)  # (width, height) pixels
     surface: bool = True
@@ -39,7 +41,12 @@ class RenderOptions:
 
     @property
     def any(self) -> bool:
-        return self.needs_renderer or self.mesh_dir is not None
+        return self.needs_renderer or self.needs_meshes
+
+    @property
+    def needs_meshes(self) -> bool:
+        """Whether the bodies' surfaces are read back each frame (mesh files, animation caches)."""
+        return self.mesh_dir is not None or self.usd is not None or self.pc2_dir is not None
 
 
 class FrameRecorder(FrameJob):
@@ -51,7 +58,7 @@ class FrameRecorder(FrameJob):
 
     def __init__(self, sim, options: RenderOptions, progress=None):
         from .camera import scene_camera
-        from .meshes import SurfaceMesh
+        from .embedded import body_surface
 
         self.sim, self.options, self.progress = sim, options, progress
         width, height = options.resolution
@@ -65,7 +72,7 @@ class FrameRecorder(FrameJob):
         try:
             if self.renderer is not None:
                 self.view = SimulationView(sim, options.surface, options.particles, options.springs)
-            self.surface = self.view.surface if self.view else SurfaceMesh(sim.model)
+            self.surface = self.view.surface if self.view else body_surface(sim.model)
             self.camera = scene_camera(sim.scene.data, width / height, options.follow,
                                        overlay.INFO_MARGIN if options.overlay else 0.0)
             self.info = overlay.run_info(sim)
@@ -74,6 +81,17 @@ class FrameRecorder(FrameJob):
                 from .export import MeshFrames
 
                 self.mesh_sinks.append(MeshFrames(options.mesh_dir, options.mesh_format, self.surface))
+            if options.usd:
+                from .caches import UsdCache
+                from .meshes import terrain_meshes
+
+                terrain = sim.terrain
+                self.mesh_sinks.append(UsdCache(options.usd, self.surface,
+                                                terrain_meshes(terrain.kind, terrain.params(), sim.scene.data), options.fps))
+            if options.pc2_dir:
+                from .caches import Pc2Cache
+
+                self.mesh_sinks.append(Pc2Cache(options.pc2_dir, self.surface))
             self.writer = BackgroundWriter(self._write)
         except BaseException:
             self.abort()
@@ -98,7 +116,7 @@ class FrameRecorder(FrameJob):
             image = self.renderer.render(self.view, self.camera.following(m["center_of_mass"]))
         else:
             self.surface.update(sim.state.x)
-        if self.options.mesh_dir:
+        if self.options.needs_meshes:
             mesh = self.surface.numpy()
         self.writer.submit((self.frames, image, lines, None, mesh, sim.time))
         self.last = (image, lines)

@@ -16,8 +16,9 @@ import taichi as ti
 from ..lattice import SPRING_KINDS
 from ..model import group_kind
 from .camera import CameraSpec
+from .embedded import body_surface
 from .lighting import LightRig, apply_rig_to_ggui, light_rig, shade
-from .meshes import BODY_COLORS, SurfaceMesh, TriMesh, terrain_meshes
+from .meshes import BODY_COLORS, TriMesh, terrain_meshes
 from .window import open_window, window_rgb
 
 BACKGROUND = (0.86, 0.89, 0.93)
@@ -144,7 +145,7 @@ class SimulationView:
         model = sim.model
         self.show_surface, self.show_particles, self.show_springs = surface, particles, springs
         springs = bool(self.show_springs)  # any kind: the index array of every kind is built
-        self.surface = SurfaceMesh(model)
+        self.surface = body_surface(model)  # mesh bodies: their input mesh, embedded (embedded.py)
         self._identity = _identity_transform()
         # One draw call for every body: per-vertex colours, one colour per body.
         self.body_colors = ti.Vector.field(3, ti.f32, self.surface.n_vertices)
