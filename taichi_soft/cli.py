@@ -270,7 +270,8 @@ def cmd_run(args) -> int:
     from .simulation import Simulation, body_lines, states_arrays, step_count
 
     scene = load_scene_from_args(args)
-    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
+    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None,
+               fast_math=args.fast_math)
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
     render_options = render_options_from_args(args, scene)
@@ -404,7 +405,7 @@ def cmd_compare(args) -> int:
 
     integrators = parse_integrator_list(args.integrators)
     scene = load_scene_from_args(args)
-    check_fits(scene.data, integrators, args.precision, args.arch)
+    check_fits(scene.data, integrators, args.precision, args.arch, fast_math=args.fast_math)
     if args.video is None and args.frames is None:
         args.video = f"{DEFAULT_OUT}/compare-{scene.name}.mp4"
     render_options = render_options_from_args(args, scene)
@@ -562,7 +563,7 @@ def add_task_args(p: argparse.ArgumentParser):
 def cmd_demo(args) -> int:
     """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
     scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
-    check_fits(scene.data, None, args.precision, args.arch)
+    check_fits(scene.data, None, args.precision, args.arch, fast_math=args.fast_math)
     screenshot = check_output_path(args.screenshot, "--screenshot", [".png"])
     start_taichi(args)
     from .demo.app import run_demo
