@@ -102,8 +102,11 @@ class Objective:
             self._store_spring_hessian(s, hs)
         self.sc[S.RES2] = 0.0
         self.sc[S.N_ACTIVE] = 0.0
+        self.sc[S.N_PAIRS] = 0.0
         self.sc[S.LAM_CHANGE] = 0.0
         self.sc[S.LAM_SUM] = 0.0
+        if ti.static(self._has_pairs()):
+            self.pairs.gradient(x)  # body-body contact (pairs.py)
         for i in range(self.n):
             gi = m.mass[i] * (x[i] - self.y[i])
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
@@ -114,8 +117,16 @@ class Objective:
                     gi -= self.spring_grad[-s - 1]
             r = ti.Vector.zero(float, 3)
             if self._free(i):
+                if ti.static(self._has_pairs()):
+                    gi += self.pairs.grad[i]
                 if ti.static(self.terrain.has_contact):
                     gi = self._contact_gradient(i, x[i], gi, dt)
+                if ti.static(self._has_pairs()):
+                    # the pairs' diagonal blocks join the terrain friction's (just written)
+                    if ti.static(self.terrain.has_contact):
+                        self.fric_hess[i] += self.pairs.hess[i]
+                    else:
+                        self.fric_hess[i] = self.pairs.hess[i]
                 r = -gi
                 if ti.static(self.terrain.has_contact):
                     if self.active[i]:
@@ -138,6 +149,8 @@ class Objective:
         self.sc[S.DEC] = 0.0
         self.sc[S.E_TRIAL] = 0.0
         self.sc[S.STEP_TRIAL] = 0.0
+        if ti.static(self._has_pairs()):
+            self.pairs.trial_begin()
         for i in range(self.n):
             xi = x[i] + alpha * self.dx[i]
             if ti.static(self.terrain.has_contact):
@@ -145,6 +158,8 @@ class Objective:
             else:
                 self.x_trial[i] = xi
             if self._free(i):
+                if ti.static(self._has_pairs()):
+                    self.pairs.track(i, xi)
                 diff = xi - self.y[i]
                 self.sc[S.F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff)
                 if ti.static(self.terrain.has_contact):
@@ -162,6 +177,8 @@ class Objective:
             es = spring_energy(m, self.x_trial, a, b, m.spring_rest[s], grp)
             self.sc[S.E_TRIAL] += es
             self.sc[S.F_TRIAL] += dt * dt * es + 0.5 * dt * m.group_kd[grp] * lu * lu
+        if ti.static(self._has_pairs()):
+            self.pairs.trial_end(self.x_trial, dt)
 
     @ti.func
     def _residual(self):
