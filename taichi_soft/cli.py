@@ -439,13 +439,12 @@ def cmd_bench(args) -> int:
 
 def cmd_gallery(args) -> int:
     """``gallery``: every terrain x integrator video, a compare mosaic per terrain, index.html."""
-    from .bench.report import TERRAINS
-    from .gallery import PAGE, Plan, check_plan, run_gallery
+    from .gallery import PAGE, SCENES, Plan, check_plan, run_gallery
     from .render.outputs import check_video_size
     from .scene import scene_names
     from .tasks import make_executor, report_failures
 
-    terrains = parse_name_list(args.terrains or ",".join(TERRAINS), "--terrains", scene_names(), "scene",
+    terrains = parse_name_list(args.terrains or ",".join(SCENES), "--terrains", scene_names(), "scene",
                                "give distinct scene names separated by commas")
     from .integrators import names
 
@@ -535,7 +534,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_bench.set_defaults(func=cmd_bench)
     p_gal = sub.add_parser("gallery", help="every terrain x integrator video, a compare mosaic per terrain, "
                                               "and an index.html that shows them all")
-    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl)")
+    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl,three_cubes,pile)")
     p_gal.add_argument("--integrators", metavar="A,B", help="comma-separated integrator names (default: all registered)")
     p_gal.add_argument("--duration", type=_float_arg("--duration"), help="simulated time [s] (default: each scene's)")
     p_gal.add_argument("--dt", type=_float_arg("--dt"),

@@ -83,29 +83,18 @@ def test_head_on_collision_conserves_momentum_and_energy(make_sim, tmp_path_fact
     x, v = sim.state.numpy()
     np.testing.assert_allclose(m @ v, p0, atol=1e-10 * m.sum() * 3.0)
     assert v[a, 0].mean() < v[b, 0].mean()  # moving apart
-    assert x[b, 0].min() - x[a, 0].max() > 0  # and apart: nothing passed through
+    assert x[a, 0].mean() < x[b, 0].mean() - SIZE  # on their own sides: nothing passed through
+    gap = np.linalg.norm(x[a][:, None] - x[b][None, :], axis=2).min()
+    assert gap > SPACING  # and apart (contact distance: one spacing)
     assert total_energy(sim.model, x, v) <= e0 * (1 + 1e-9)
     assert sim.integrator.stats()["body_pairs_in_contact_per_step"] > 0
 
 
-@pytest.mark.parametrize("mu", [0.3, 0.0])
+
+
 @pytest.mark.parametrize("name", IMPLICIT)
-def test_cube_sliding_on_a_cube_decelerates_at_mu_g(make_sim, tmp_path_factory, name, mu):
-    """The upper cube slides at 3 m/s on the lower one resting on the plane: their relative velocity
-    falls at mu g (Coulomb friction between bodies inside the solve), not at all with mu = 0."""
-    sim = _sim(make_sim, tmp_path_factory, name, "plane")
-    sim.set_dt(1 / 60)
-    sim.terrain.set_contact(friction=mu)
-    try:
-        _place(sim, [[0.0, 0.5, 0.0], [0.0, 0.5 + SIZE + SPACING + 1e-3, 0.0]], [(0, 0, 0), (3.0, 0, 0)],
-               (0.0, -G, 0.0))
-        low, high = (body.particles for body in sim.model.bodies)
-        rel = []
-        for t in (0.15, 0.55):
-            sim.advance(int(round(t * 60)) - sim.steps)
-            v = sim.state.numpy()[1]
-            rel.append(v[high, 0].mean() - v[low, 0].mean())
-    finally:
-        sim.terrain.set_contact(friction=0.3)
-    decel = (rel[0] - rel[1]) / 0.4
-    assert decel == pytest.approx(mu * G, abs=0.1 * 0.3 * G)
+def test_one_body_scene_and_contact_off_build_no_pair_code(make_sim, name):
+    assert make_sim("plane", ["body.0.n=3"], integrator=name).integrator.pairs is None
+    sim = make_sim("three_cubes", ["solver.body_contact=false"],
+                   integrator=name)
+    assert sim.contacts is not None and sim.integrator.pairs is None

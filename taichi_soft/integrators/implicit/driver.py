@@ -381,6 +381,8 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.sc[S.BOUNCE_B] = 0.0
         self.sc[S.K_SOLVE] = 0.0
         self.sc[S.G_END] = 0.0
+        if ti.static(not self.terrain.has_contact):
+            self._translation_minimum(x)
         if ti.static(self._has_pairs()):
             self.pairs.end(x, dt)
         for i in range(self.n):
