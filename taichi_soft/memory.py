@@ -115,12 +115,42 @@ IMPLICIT = ("implicit_euler", "fast_mass_spring")
 HOST_PARTICLE_BYTES = 56  # model.x0_np, v0_np (float64 vec3) and mass_np (float64)
 
 
+def _mesh_lattice(body: dict):
+    """The (cached) ``meshbody.MeshLattice`` of a validated mesh body, None for a cube."""
+    if body.get("shape", "cube") != "mesh":
+        return None
+    from .meshbody import mesh_lattice
+
+    scale = body.get("scale")
+    return mesh_lattice(body["mesh"], int(body["n"]), size=None if scale else body["size"], scale=scale)
+
+
 def scene_counts(scene_data: dict) -> tuple[int, int]:
-    """(particles, springs) of a validated scene, from the body sizes alone."""
+    """(particles, springs) of a validated scene: from the body sizes for cubes, the filled
+    lattice (read once, cached) for mesh bodies."""
     from .lattice import spring_count  # imports Taichi: only once the CLI has set it up quietly
 
-    ns = [int(b["n"]) for b in scene_data["body"]]
-    return sum(n**3 for n in ns), sum(spring_count(n) for n in ns)
+    n_p = n_s = 0
+    for b in scene_data["body"]:
+        m = _mesh_lattice(b)
+        n = int(b["n"])
+        n_p += m.n_particles if m else n**3
+        n_s += m.n_springs if m else spring_count(n)
+    return n_p, n_s
+
+
+def _surface_host_bytes(scene_data: dict) -> int:
+    """Host bytes of the bodies' surfaces: a cube's 12 (n-1)^2 triangles as int64 triples; a mesh
+    body's triangles (int64) and vertices (float64) and each vertex's embedding (int32 index and
+    float64 weight per followed particle)."""
+    total = 0
+    for b in scene_data["body"]:
+        m = _mesh_lattice(b)
+        if m is None:
+            total += 12 * (int(b["n"]) - 1) ** 2 * 3 * 8
+        else:
+            total += m.triangles.nbytes + m.vertices.nbytes + m.embed_index.nbytes + m.embed_weight.nbytes
+    return total
 
 
 def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
@@ -133,6 +163,7 @@ def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
     solver = scene_data.get("solver", {}).get("global_solver", "auto")
     if solver == "pcg" or (solver == "auto" and arch != "cpu"):
         return 0
+    # A mesh body fills part of its n^3 cube, numbered in the same order: its envelope is smaller.
     nnz = sum(envelope_size(int(b["n"])) for b in scene_data["body"])
     return nnz if solver == "cholesky" or nnz <= CHOLESKY_AUTO_MAX else 0
 
@@ -204,11 +235,13 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
         fields += field_counts(name, family, nnz > 0).bytes(n_p, n_s, real) + nnz * real
         fields += _lbfgs_reals(scene_data, name) * n_p * real
         fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
-    if len(scene_data["body"]) > 1:  # body-body contact: one per simulation
+    if len(scene_data["body"]) > 1:  # body-body contact: one per simulation, and the implicit pair terms
+        from .integrators.implicit import pairs
+
         fields += len(names) * collision.field_bytes(n_p, real)
+        fields += sum(pairs.field_bytes(n_p, real) for name in names if name in IMPLICIT)
     base = max(BASE_BYTES.get(name, BASE_BYTES_OTHER) for name in names)
-    n_surface = sum(12 * (int(b["n"]) - 1) ** 2 for b in scene_data["body"])
-    host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + n_surface * 3 * 8)
+    host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + _surface_host_bytes(scene_data))
     if real == 4:
         host += n_p * 2 * 3 * real  # State.set converts the float64 x0_np, v0_np to f32 copies
     host += len(names) * n_p * 16  # simulation.check_start: signed distances and contact radii (float64)

@@ -157,19 +157,29 @@ def test_frame_schedule_is_exact(total, fps, dt):
         assert abs(s * dt - k / fps) <= dt / 2 + 1e-12
 
 
-@pytest.mark.parametrize("dt", [0.001, 0.005])
-def test_f32_implicit_small_steps_are_noted(cli, tmp_path, dt):
-    """Implicit solvers in f32 below F32_IMPLICIT_MIN_DT get a note on stderr; at that dt the free
-    fall they simulate is still v = g t (within 0.2 % after 0.6 s), so the note's limit is safe."""
-    from taichi_soft.integrators.base import F32_IMPLICIT_MIN_DT
-
+def test_f32_implicit_free_fall_at_1ms_is_g_t(cli, tmp_path):
+    """Issue 24: in f32 at 1 ms the implicit solvers fell 2-3 % slow (positions rounded to 1e-6 m
+    near 9 m, as much as a step's change of motion); they iterate on displacements now: free fall
+    is v = g t, without a note or warning (both solvers: tests/test_f32_implicit.py)."""
     summary = tmp_path / "s.json"
-    r = cli("run", "--scene", "plane", "--set", "terrain.kind=none", "--set", "body.0.n=4", "--integrator",
-            "fast_mass_spring", "--precision", "f32", "--dt", str(dt), "--duration", "0.6", "--summary", summary)
+    r = cli("run", "--scene", "plane", "--set", "terrain.kind=none", "--set", "body.0.n=3", "--integrator",
+            "fast_mass_spring", "--precision", "f32", "--dt", "0.001", "--duration", "0.6", "--summary", summary)
     assert r.returncode == 0, r.stderr
-    noted = [line for line in r.stderr.splitlines() if line.startswith("note: fast_mass_spring in f32")]
-    assert len(noted) == (1 if dt < F32_IMPLICIT_MIN_DT else 0), r.stderr
-    if dt >= F32_IMPLICIT_MIN_DT:
-        s = json.loads(summary.read_text())
-        speed = np.sqrt(2 * s["final"]["kinetic_energy"] / 64.0)  # 64 particles of 1 kg, all at one speed
-        assert speed == pytest.approx(9.8 * 0.6, rel=2e-3)
+    assert "note:" not in r.stderr and "warning:" not in r.stderr, r.stderr
+    s = json.loads(summary.read_text())
+    speed = np.sqrt(2 * s["final"]["kinetic_energy"] / 27.0)  # 27 particles of 1 kg, all at one speed
+    assert speed == pytest.approx(9.8 * 0.6, rel=1e-3)  # the issue asks for 1 %; it was 2.6 % slow
+    assert s["solver_warnings"] == [] and s["meaningless"] is False
+
+
+def test_bench_help_hides_the_internal_speed_worker():
+    """Issue 24: `bench speed-worker` (one process of `bench report`) is accepted, never listed."""
+    from taichi_soft.cli import build_parser
+
+    parser = build_parser()
+    bench = parser._subparsers._group_actions[0].choices["bench"]
+    assert "speed-worker" not in bench.format_help() and "speed," in bench.format_help()
+    assert parser.parse_args(["bench", "speed-worker"]).study == "speed-worker"
+    with pytest.raises(UserError) as e:
+        parser.parse_args(["bench", "nope"])
+    assert "speed-worker" not in str(e.value)

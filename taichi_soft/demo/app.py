@@ -324,13 +324,13 @@ class DemoApp:
 
 
 def run_demo(scene="plane", overrides=(), integrator=None, dt=None, size=(1280, 800), frames=None, screenshot=None,
-             paused=False):
+             paused=False, duration=None):
     """Open the window, build the simulation and run (Taichi must be initialised); ``paused``:
-    start paused (Space plays).
+    start paused (Space plays); ``duration`` [s]: stop the simulation there (None: run on).
 
     The window comes first: without a display or Vulkan that fails in one line before seconds
     of kernel compilation.
     """
     window = open_demo_window("taichi-soft demo", size)
-    ctl = DemoController(scene, overrides, integrator, dt, paused=paused)
+    ctl = DemoController(scene, overrides, integrator, dt, paused=paused, duration=duration)
     DemoApp(ctl, size, window).run(frames, screenshot)

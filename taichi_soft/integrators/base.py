@@ -34,11 +34,6 @@ from ..forces import ForceEvaluator
 SERIAL_MAX_PARTICLES = 4096
 SERIAL_MAX_PARTICLES_EXPLICIT = 20000
 NOT_DIVERGED = 2**31 - 1
-# Implicit solvers iterate on positions: in f32 each step's velocity (x_{n+1} - x_n)/dt inherits
-# the rounding of x (about 1e-6 m at 10 m), which matters below this step [s]. Measured, free fall
-# for 0.6 s: velocity 1.9 % (implicit_euler) and 2.3 % (fast_mass_spring) slow at dt = 1 ms,
-# 0.01 % at 1/60 s; exact in f64 (docs/implicit.md, "Precision").
-F32_IMPLICIT_MIN_DT = 0.005
 
 
 @ti.data_oriented
@@ -143,13 +138,6 @@ class Integrator:
     def step(self, state, dt: float) -> bool:
         """One step; returns False if it diverged."""
         return self.advance(state, dt, 1) == 1 and not self.diverged
-
-    def precision_note(self, dt: float) -> str | None:
-        """One line on what this integrator loses at step ``dt`` [s] in the run's precision, or None."""
-        if self.implicit and self.model.real == np.float32 and dt < F32_IMPLICIT_MIN_DT:
-            return (f"{self.name} in f32 at dt = {dt:g} s loses velocity to the rounding of positions "
-                    f"(free fall 2 % slow after 0.6 s at dt = 1 ms); use --precision f64 or dt >= {F32_IMPLICIT_MIN_DT:g} s")
-        return None
 
     @property
     def diverged(self) -> bool:

@@ -50,7 +50,10 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         o = self.options
         self.v_new = ti.Vector.field(3, float, n)  # velocity from the solve [m/s]
         self.dv = ti.Vector.field(3, float, n)  # restitution's velocity change [m/s]
-        self.sc = ti.field(float, S.N_SC)
+        # f64 whatever the precision: its sums run over every particle (objective, residual, energies),
+        # and in f32 a sum over 10^5-10^7 terms lost the line search's decrease and the energy
+        # balance to round-off (a large body froze: docs/implicit.md, "Precision").
+        self.sc = ti.field(ti.f64, S.N_SC)
         self.ctl = ti.field(ti.i32, S.N_CTL)
         self.acc = ti.field(ti.f64, S.N_ACC)
         self.res_history = ti.field(float, S.RES_HISTORY)  # residual [m/s^2] per gradient of the last step
@@ -137,11 +140,11 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             self.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
         self.sc[S.T_MAX] = 1.0
         self.sc[S.K_START] = 0.0
-        self.sc[S.G_START] = 0.0
         for i in range(self.n):
             xi = x[i]
             self.x_prev[i] = xi
             self.v_prev[i] = v[i]
+            self.u[i] = ti.Vector.zero(float, 3)
             self.grad[i] = ti.Vector.zero(float, 3)
             self.fric_hess[i] = ti.Matrix.zero(float, 3, 3)
             d = dt * v[i]
@@ -149,20 +152,20 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                 d += dt * dt * m.gravity[None]
                 mi = m.mass[i]
                 self.sc[S.K_START] += 0.5 * mi * v[i].dot(v[i])
-                self.sc[S.G_START] -= mi * m.gravity[None].dot(xi)
-                self.y[i] = xi + d
+                self.yd[i] = d
                 if ti.static(self.terrain.has_contact):
                     d = self._start_direction(i, xi, d, dt)
                 self.dx[i] = d
             else:
-                self.y[i] = xi + d
+                self.yd[i] = d
+                self.u[i] = d
                 x[i] = xi + d  # pinned: moves with its own velocity, never solved for
                 self.dx[i] = ti.Vector.zero(float, 3)
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = 0
                     self.lam[i] = 0.0
         if ti.static(self._has_pairs()):
-            self.pairs.begin(self.x_prev, self.y, self.dx)
+            self.pairs.begin(self.x_prev, self.yd, self.dx)
         for k in ti.static(range(S.N_CTL)):
             self.ctl[k] = 0
         self.sc[S.RES_PREV] = 1e30  # no release before a residual is known
@@ -207,6 +210,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         for i in range(self.n):
             if ok:
                 x[i] = self.x_trial[i]
+                self.u[i] = self.u_trial[i]
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = self.trial_active[i]
                     self.normal[i] = self.trial_normal[i]
@@ -217,10 +221,13 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             self.sc[S.STEP] = self.sc[S.STEP_TRIAL]
         elif phase == 2:
             self.ctl[S.DONE] = 1
+            self.ctl[S.LS_FAILED] = 1  # no decrease along the direction while unconverged: counted
         if phase == 0:
             # The reference: g, spring and total energy at x_n; next, the feasible start.
-            self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.G_START] + self.sc[S.E_TRIAL]
-            self.sc[S.H_SCALE] = self.sc[S.K_START] + ti.abs(self.sc[S.G_START]) + self.sc[S.E_TRIAL]
+            # Gravity energy is measured from x_n (0 here; -m g . u at the end): its absolute value,
+            # m g y summed over the body, rounded away the balance of a step in f32.
+            self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.E_TRIAL]
+            self.sc[S.H_SCALE] = self.sc[S.K_START] + self.sc[S.E_TRIAL]
             self._line_search_begin(self.sc[S.T_MAX], S.START_HALVINGS)
         self.ctl[S.PHASE] = ti.min(phase + 1, 2)
 
@@ -285,6 +292,9 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.acc[S.A_CLAMPED] += ti.cast(self.ctl[S.CLAMPED], ti.f64)
         self.acc[S.A_BOUNCE] += ti.cast(self.ctl[S.BOUNCE_LIMITED], ti.f64)
         self.acc[S.A_LB_RESTARTS] += ti.cast(self.ctl[S.LB_RESTARTS], ti.f64)
+        if self.ctl[S.LS_FAILED]:
+            self.acc[S.A_FAILED] += 1.0
+            self.acc[S.A_FAILED_RES] = ti.max(self.acc[S.A_FAILED_RES], ti.cast(self._residual(), ti.f64))
 
     # -- the serial driver (inside the kernel that runs many steps) ------------------------------
     # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so
@@ -373,7 +383,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
     # -- phase 4: end --------------------------------------------------------------------------------
     @ti.func
     def _end_step(self, x: ti.template(), v: ti.template(), dt, step):
-        """v = (x - x_n)/h; restitution scaled to the energy the step lost; ``_finish``; then, if the
+        """v = u/h = (x - x_n)/h; restitution scaled to the energy the step lost; ``_finish``; then, if the
         step still ends with more energy than it began with (beyond round-off), the counted clamp."""
         m = self.model
         g = m.gravity[None]
@@ -386,7 +396,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         if ti.static(self._has_pairs()):
             self.pairs.end(x, dt)
         for i in range(self.n):
-            vi = (x[i] - self.x_prev[i]) / dt
+            vi = self.u[i] / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
                 delta = self._bounce(i, vi)
@@ -399,7 +409,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                 self.sc[S.K_SOLVE] += 0.5 * mi * vi.dot(vi)
                 self.sc[S.BOUNCE_A] += 0.5 * mi * delta.dot(delta)
                 self.sc[S.BOUNCE_B] += mi * vi.dot(delta)
-                self.sc[S.G_END] -= mi * g.dot(x[i])
+                self.sc[S.G_END] -= mi * g.dot(self.u[i])
         scale = ti.cast(1.0, float)
         if ti.static(self.terrain.has_contact or self._has_pairs()):
             lost = self.sc[S.H_START] - (self.sc[S.K_SOLVE] + self.sc[S.G_END] + self.sc[S.E_CUR])
@@ -412,7 +422,8 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         # Last resort, counted in stats(): take the excess out of the kinetic energy.
         excess = self.sc[S.K_END] + self.sc[S.G_END] + self.sc[S.E_CUR] - self.sc[S.H_START]
         f = ti.cast(1.0, float)
-        if self.clamp_on[None] and excess > self.energy_tol[None] * self.sc[S.H_SCALE]:
+        noise = self.sc[S.H_SCALE] + self.sc[S.K_END] + ti.abs(self.sc[S.G_END])  # scale of its round-off
+        if self.clamp_on[None] and excess > self.energy_tol[None] * noise:
             self.ctl[S.CLAMPED] = 1
             k_end = self.sc[S.K_END]
             if k_end > 0:
@@ -474,22 +485,30 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
 
     def objective(self, state, dt: float) -> float:
         """g(state.x) [kg m^2] for the step begun last."""
+        self._k_displace(state.x)
         self._k_trial_at(state.x, dt, 0.0)
         return float(self.sc[S.F_TRIAL])
 
     def gradient(self, state, dt: float) -> np.ndarray:
         """grad g(state.x) [kg m], an [n, 3] array."""
+        self._k_displace(state.x)
         self._k_gradient_decide(state.x, dt)
         return self.grad.to_numpy()
 
     def hessian_product(self, state, dt: float, w: np.ndarray) -> np.ndarray:
         """H w [kg m], H the (PSD-clamped) Hessian the solver uses at state.x; w an [n, 3] array."""
+        self._k_displace(state.x)
         self._k_gradient_decide(state.x, dt)
         src = ti.Vector.field(3, float, self.n)
         dst = ti.Vector.field(3, float, self.n)
         src.from_numpy(np.asarray(w, dtype=self.model.real))
         self._k_apply(src, dst)
         return dst.to_numpy()
+
+    @ti.kernel
+    def _k_displace(self, x: ti.template()):
+        for i in range(self.n):
+            self.u[i] = x[i] - self.x_prev[i]
 
     @ti.kernel
     def _k_no_contacts(self):
@@ -514,7 +533,10 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         return a
 
     def _contact_stats(self, a: list, steps: float) -> dict:
+        """The counts of steps something intervened in or failed (``health.assess`` reads them)."""
         return {
+            "failed_solve_steps": int(a[S.A_FAILED]),
+            "failed_solve_max_residual_m_s2": a[S.A_FAILED_RES],
             "friction_updates_per_step": a[S.A_UPDATES] / steps,
             "energy_clamped_steps": int(a[S.A_CLAMPED]),
             "restitution_limited_steps": int(a[S.A_BOUNCE]),

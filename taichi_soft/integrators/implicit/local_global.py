@@ -51,7 +51,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             self.lb_y = ti.Vector.field(3, float, (n, self.history))  # rhs_k - rhs_{k+1} [kg m]
             self.lb_rho = ti.field(float, self.history)  # 1 / (s . y) [1/(kg m^2)]
             self.lb_alpha = ti.field(float, self.history)  # the two-loop recursion's coefficients
-            self.lb_x = ti.Vector.field(3, float, n)  # the iterate of the last direction [m]
+            self.lb_x = ti.Vector.field(3, float, n)  # the iterate of the last direction, as u = x - x_n [m]
             self.lb_r = ti.Vector.field(3, float, n)  # its rhs [kg m]
             self.lb_dot = ti.field(float, ())
         super().__init__(model, terrain, options)
@@ -196,13 +196,13 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         self.lb_dot[None] = 0.0
         for i in range(self.n):
             if keep:
-                s = x[i] - self.lb_x[i]
+                s = self.u[i] - self.lb_x[i]
                 y = self.lb_r[i] - self.rhs[i]
                 self.lb_s[i, head] = s
                 self.lb_y[i, head] = y
                 self.lb_dot[None] += s.dot(y)
             if not held:
-                self.lb_x[i] = x[i]
+                self.lb_x[i] = self.u[i]
                 self.lb_r[i] = self.rhs[i]
         if not keep:
             c[S.LB_COUNT] = 0

@@ -29,7 +29,13 @@ class Objective:
         vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
         self.x_prev = vec(n)  # x_n [m]
         self.v_prev = vec(n)  # v_n [m/s]
-        self.y = vec(n)  # inertial target x_n + h v_n + h^2 g [m]
+        # The solve iterates on displacements from x_n: in f32 a position near 9 m rounds to 1e-6 m,
+        # as much as a 1 ms step's motion changes per step, and the rounding was biased (free fall
+        # 2.6 % slow at 1 ms). The objective's inertia and damper terms and the step's velocity
+        # read these; positions (springs, terrain) are x_n + u.
+        self.u = vec(n)  # displacement x - x_n of the current iterate [m]
+        self.u_trial = vec(n)  # displacement of the line-search trial point [m]
+        self.yd = vec(n)  # the inertial target y as a displacement: y - x_n = h v_n + h^2 g [m]
         self.grad = vec(n)  # gradient of the objective [kg m]
         self.rhs = vec(n)  # -grad with held particles' normal components removed [kg m]
         self.dx = vec(n)  # update direction of the current iteration [m]
@@ -89,7 +95,7 @@ class Objective:
         grp = m.spring_group[s]
         ge, he = spring_energy_derivatives(m, x, a, b, m.spring_rest[s], grp)
         l = self.spring_dir[s]
-        u = (x[a] - self.x_prev[a]) - (x[b] - self.x_prev[b])
+        u = self.u[a] - self.u[b]
         kd = m.group_kd[grp]
         return dt * dt * ge + (dt * kd * l.dot(u)) * l, dt * dt * he + (dt * kd) * l.outer_product(l)
 
@@ -111,9 +117,9 @@ class Objective:
         self.sc[S.LAM_CHANGE] = 0.0
         self.sc[S.LAM_SUM] = 0.0
         if ti.static(self._has_pairs()):
-            self.pairs.gradient(x)  # body-body contact (pairs.py)
+            self.pairs.gradient(x, self.u)  # body-body contact (pairs.py)
         for i in range(self.n):
-            gi = m.mass[i] * (x[i] - self.y[i])
+            gi = m.mass[i] * (self.u[i] - self.yd[i])
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 s = m.adj_spring[e]
                 if s >= 0:
@@ -157,15 +163,19 @@ class Objective:
         if ti.static(self._has_pairs()):
             self.pairs.trial_begin()
         for i in range(self.n):
-            xi = x[i] + alpha * self.dx[i]
+            ui = self.u[i] + ti.cast(alpha, float) * self.dx[i]
+            xi = self.x_prev[i] + ui
             if ti.static(self.terrain.has_contact):
                 xi = self._project(i, xi, alpha > 0)  # alpha = 0: the current point exactly
+                if self.trial_active[i]:  # on the surface: the displacement to the projected point
+                    ui = xi - self.x_prev[i]
             else:
                 self.x_trial[i] = xi
+            self.u_trial[i] = ui
             if self._free(i):
                 if ti.static(self._has_pairs()):
-                    self.pairs.track(i, xi)
-                diff = xi - self.y[i]
+                    self.pairs.track(ui)  # the trust region
+                diff = ui - self.yd[i]
                 self.sc[S.F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff)
                 if ti.static(self.terrain.has_contact):
                     if self.lam[i] > 0:  # held when lam was frozen, hence held here too
@@ -177,13 +187,13 @@ class Objective:
         for s in range(m.n_springs):
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             grp = m.spring_group[s]
-            u = (self.x_trial[a] - self.x_prev[a]) - (self.x_trial[b] - self.x_prev[b])
+            u = self.u_trial[a] - self.u_trial[b]
             lu = self.spring_dir[s].dot(u)
             es = spring_energy(m, self.x_trial, a, b, m.spring_rest[s], grp)
             self.sc[S.E_TRIAL] += es
             self.sc[S.F_TRIAL] += dt * dt * es + 0.5 * dt * m.group_kd[grp] * lu * lu
         if ti.static(self._has_pairs()):
-            self.pairs.trial_end(self.x_trial, dt)
+            self.pairs.trial_end(self.x_trial, self.u_trial, dt)
 
     @ti.func
     def _translation_minimum(self, x: ti.template()):
@@ -196,10 +206,11 @@ class Objective:
         if self.translation_free[None]:
             self.shift[None] = ti.Vector.zero(float, 3)
             for i in range(self.n):
-                self.shift[None] += m.mass[i] * (self.y[i] - x[i])
+                self.shift[None] += m.mass[i] * (self.yd[i] - self.u[i])
             c = self.shift[None] / self.total_mass[None]
             for i in range(self.n):
-                x[i] += c
+                self.u[i] += c
+                x[i] = self.x_prev[i] + self.u[i]
 
     @ti.func
     def _residual(self):

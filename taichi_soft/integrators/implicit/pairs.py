@@ -38,10 +38,21 @@ import taichi as ti
 from ...collision import contact_radii, table_size
 from . import slots as S
 
-PAIRS_PER_PARTICLE = 24  # capacity of the candidate list per particle (overflow is counted)
+# Capacity of the candidate list per particle (overflow is counted). The pile scene needs under 1 per
+# particle (525 candidates for 683 particles at 1/60 s); a fast body widens the slack and with it the list.
+PAIRS_PER_PARTICLE = 12
 # stats accumulators (f64)
 P_CONTACT, P_REMOVED, P_DEEPEST, P_OVERFLOW, P_TRUST, P_PAIRS, P_BOUNCES = range(7)
 N_PACC = 7
+
+
+def field_bytes(n_particles: int, real_bytes: int) -> int:
+    """Bytes of a ``PairContacts``'s fields (for the memory model): per candidate pair two ends
+    (i32), a multiplier, its normal and a 3x3 block (reals); per particle body, near flag, sorted
+    index and contact count (i32), radius, gradient, restitution and a 3x3 block (reals); per hash
+    bucket a count and a start (i32)."""
+    pairs = PAIRS_PER_PARTICLE * n_particles * (2 * 4 + 13 * real_bytes)
+    return pairs + n_particles * (4 * 4 + 16 * real_bytes) + table_size(n_particles) * 2 * 4
 
 
 @ti.data_oriented
@@ -135,12 +146,12 @@ class PairContacts:
 
     # -- begin: candidate pairs, feasible start ---------------------------------------------------
     @ti.func
-    def begin(self, xp: ti.template(), y: ti.template(), d: ti.template()):
-        """Candidate pairs at x_n = ``xp`` for the predictor ``y``; lowers the owner's start
-        fraction T_MAX to the first contact along the start direction ``d`` [m]."""
+    def begin(self, xp: ti.template(), yd: ti.template(), d: ti.template()):
+        """Candidate pairs at x_n = ``xp`` for the predicted move ``yd`` = y - x_n [m]; lowers the
+        owner's start fraction T_MAX to the first contact along the start direction ``d`` [m]."""
         self.slack[None] = 0.0
         for i in range(self.n):
-            ti.atomic_max(self.slack[None], (y[i] - xp[i]).norm())
+            ti.atomic_max(self.slack[None], yd[i].norm())
         self.slack[None] = 2.0 * self.slack[None] + 0.5 * self.r_max[None]
         self.cell[None] = self.r_max[None] + self.slack[None]
         for b in range(self.n_bodies):
@@ -184,7 +195,7 @@ class PairContacts:
             self.lam[p] = 0.0
             r = self._reach(i, j)
             a = xp[i] - xp[j]
-            self.acc[P_REMOVED] += ti.cast(ti.max(r - (y[i] - y[j]).norm(), 0.0), ti.f64)
+            self.acc[P_REMOVED] += ti.cast(ti.max(r - (a + yd[i] - yd[j]).norm(), 0.0), ti.f64)
             b = d[i] - d[j]
             # First t in (0, 1] with |a + t b| = r, for a pair apart at x_n.
             bb = b.dot(b)
@@ -220,12 +231,13 @@ class PairContacts:
 
     # -- the objective --------------------------------------------------------------------------
     @ti.func
-    def _friction(self, p, x: ti.template(), nrm, lam):
-        """Friction of pair p at x: (energy [kg m^2], gradient w.r.t. x_i [kg m], Hessian block [kg]);
-        the terrain's Huber-smoothed lagged friction on the relative tangential displacement."""
+    def _friction(self, p, disp: ti.template(), nrm, lam):
+        """Friction of pair p at displacements ``disp`` = x - x_n: (energy [kg m^2], gradient w.r.t.
+        x_i [kg m], Hessian block [kg]); the terrain's Huber-smoothed lagged friction on the relative
+        tangential displacement."""
         i, j = self.pa[p], self.pb[p]
         tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-        u = tp @ ((x[i] - self.owner.x_prev[i]) - (x[j] - self.owner.x_prev[j]))
+        u = tp @ (disp[i] - disp[j])
         sl = u.norm()
         eps = self.owner.fric_eps[None]
         c = self.terrain.friction[None] * lam
@@ -250,9 +262,9 @@ class PairContacts:
         return nrm
 
     @ti.func
-    def gradient(self, x: ti.template()):
+    def gradient(self, x: ti.template(), disp: ti.template()):
         """Per-particle gradient (``grad``) and diagonal Hessian blocks (``hess``) of the pair terms
-        at x, the pair blocks for ``apply``; freezes, refreezes (``ctl[UPDATE]``) and releases
+        at positions x (displacements ``disp`` = x - x_n), the pair blocks for ``apply``; freezes, refreezes (``ctl[UPDATE]``) and releases
         friction multipliers, correcting the objective value as the terrain's do. Adds the pairs
         in contact to N_ACTIVE and their candidate multipliers to the refreeze test's sums."""
         for i in range(self.n):
@@ -287,10 +299,10 @@ class PairContacts:
                 lam_new = 0.0  # apart: released at once
             changed = refrozen or lam_new != lam_old
             if changed and lam_old > 0:  # the objective's friction term changes from lam_old f0(n_old) ...
-                f_old, _g, _h = self._friction(p, x, n_old, lam_old)
+                f_old, _g, _h = self._friction(p, disp, n_old, lam_old)
                 self.owner.sc[S.F_CUR] -= f_old
             if lam_new > 0:  # ... to lam_new f0(n_new)
-                f_new, fg, fh = self._friction(p, x, self.fnormal[p], lam_new)
+                f_new, fg, fh = self._friction(p, disp, self.fnormal[p], lam_new)
                 if changed:
                     self.owner.sc[S.F_CUR] += f_new
                 g += fg
@@ -317,13 +329,13 @@ class PairContacts:
         self.move[None] = 0.0
 
     @ti.func
-    def track(self, i, xi):
-        """Record trial particle i's distance from x_n (the trust region)."""
-        ti.atomic_max(self.move[None], (xi - self.owner.x_prev[i]).norm())
+    def track(self, ui):
+        """Record a trial particle's displacement ``ui`` from x_n [m] (the trust region)."""
+        ti.atomic_max(self.move[None], ui.norm())
 
     @ti.func
-    def trial_end(self, xt: ti.template(), dt):
-        """Add the pair terms at the trial point xt to F_TRIAL (penalty and frozen friction) and the
+    def trial_end(self, xt: ti.template(), ut: ti.template(), dt):
+        """Add the pair terms at the trial point xt (displacements ut) to F_TRIAL (penalty and frozen friction) and the
         penalty's energy [J] to E_TRIAL; a trial beyond the trust region gets an infinite value."""
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
@@ -333,7 +345,7 @@ class PairContacts:
                 self.owner.sc[S.F_TRIAL] += e
                 self.owner.sc[S.E_TRIAL] += e / (dt * dt)
             if self.lam[p] > 0:
-                fe, _g, _h = self._friction(p, xt, self.fnormal[p], self.lam[p])
+                fe, _g, _h = self._friction(p, ut, self.fnormal[p], self.lam[p])
                 self.owner.sc[S.F_TRIAL] += fe
         if self.move[None] > 0.5 * self.slack[None]:
             self.owner.sc[S.F_TRIAL] = 1e300
@@ -365,7 +377,7 @@ class PairContacts:
                 nrm = d / dist
                 approach = nrm.dot(self.owner.v_prev[i] - self.owner.v_prev[j])
                 if -approach > t.bounce_threshold[None]:
-                    vn = nrm.dot((x[i] - self.owner.x_prev[i]) - (x[j] - self.owner.x_prev[j])) / dt
+                    vn = nrm.dot(self.owner.u[i] - self.owner.u[j]) / dt
                     target = -t.restitution[None] * approach
                     if target > vn:
                         inv_i, inv_j = self.model.inv_mass[i], self.model.inv_mass[j]
