@@ -252,8 +252,11 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
             fields += rows_bytes(scene_data, n_p, real)
         fields += _lbfgs_reals(scene_data, name) * n_p * real
         fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
-    if len(scene_data["body"]) > 1:  # body-body contact: one per simulation
+    if len(scene_data["body"]) > 1:  # body-body contact: one per simulation, and the implicit pair terms
+        from .integrators.implicit import pairs
+
         fields += len(names) * collision.field_bytes(n_p, real)
+        fields += sum(pairs.field_bytes(n_p, real) for name in names if name in IMPLICIT)
     base = max(BASE_BYTES.get(name, BASE_BYTES_OTHER) for name in names)
     host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + _surface_host_bytes(scene_data))
     if real == 4:
