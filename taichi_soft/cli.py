@@ -272,6 +272,14 @@ def cmd_run(args) -> int:
     scene = load_scene_from_args(args)
     check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None,
                fast_math=args.fast_math)
+    if args.dry_run:
+        from .dry_run import describe
+
+        outputs = {"--summary": args.summary, "--states": args.states, "--video": args.video, "--frames": args.frames,
+                   "--export-mesh": args.export_mesh, "--export-usd": args.export_usd, "--export-pc2": args.export_pc2}
+        for line in describe(scene, args.precision, args.arch, outputs, scene.data["render"]["fps"], args.fast_math):
+            print(line)
+        return EXIT_OK
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
     render_options = render_options_from_args(args, scene)
@@ -580,6 +588,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_args(p_run)
     p_run.add_argument("--summary", help="write a JSON run summary here")
     p_run.add_argument("--states", help="write sampled states (t, x, v) to this .npz")
+    p_run.add_argument("--dry-run", action="store_true",
+                       help="print what would be simulated and written and the memory estimate, then exit")
     add_render_args(p_run)
     p_run.set_defaults(func=cmd_run)
     p_cmp = sub.add_parser("compare", help="run one scene with several integrators at the same dt; write a mosaic video")
