@@ -13,7 +13,7 @@ def _size(b: int) -> str:
     return f"{b / 1e6:.0f} MB" if b < 1e9 else f"{b / 1e9:.2f} GB"
 
 
-def describe(scene, precision: str, arch: str, outputs: dict, fps: float) -> list[str]:
+def describe(scene, precision: str, arch: str, outputs: dict, fps: float, fast_math: bool = True) -> list[str]:
     """Lines for ``run --dry-run``: ``scene`` a validated ``Scene``; ``outputs`` {flag: path or
     None}; ``fps`` the output frame rate."""
     sim, data = scene.sim, scene.data
@@ -21,7 +21,8 @@ def describe(scene, precision: str, arch: str, outputs: dict, fps: float) -> lis
     steps = step_count(duration, dt)
     frames = len(frame_steps(steps, fps, dt))
     bodies = data["body"]
-    e = memory.estimate(data, None, precision, arch, record_states=outputs.get("--states") is not None)
+    e = memory.estimate(data, None, precision, arch, record_states=outputs.get("--states") is not None,
+                        fast_math=fast_math)
     have = memory.available_bytes(arch)
     lines = [
         f"dry run of {scene.label}: nothing is simulated or written",
