@@ -185,15 +185,16 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
 
 def render_options_from_args(args, scene):
     """Validated ``RenderOptions``: output paths checked (and parents created) before any simulation."""
-    from .render.outputs import VIDEO_SUFFIXES, check_video_size
     from .render.choose import choose_renderer
+    from .render.outputs import VIDEO_SUFFIXES, check_video_size
     from .render.recorder import RenderOptions
 
     render = scene.data["render"]
     width, height = render["resolution"]
     video = check_output_path(args.video, "--video", VIDEO_SUFFIXES)
     check_video_size(video, width, height)
-    choose_renderer(args.renderer, args.particles or args.springs)  # a bad combination: exit 2 now
+    if video or args.frames:  # a bad combination: exit 2 now, before any simulation
+        choose_renderer(args.renderer, args.particles or args.springs)
     usd = getattr(args, "export_usd", None)
     if usd is not None:
         from .render.caches import USD_SUFFIXES, require_usd
