@@ -270,7 +270,16 @@ def cmd_run(args) -> int:
     from .simulation import Simulation, body_lines, states_arrays, step_count
 
     scene = load_scene_from_args(args)
-    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
+    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None,
+               fast_math=args.fast_math)
+    if args.dry_run:
+        from .dry_run import describe
+
+        outputs = {"--summary": args.summary, "--states": args.states, "--video": args.video, "--frames": args.frames,
+                   "--export-mesh": args.export_mesh, "--export-usd": args.export_usd, "--export-pc2": args.export_pc2}
+        for line in describe(scene, args.precision, args.arch, outputs, scene.data["render"]["fps"], args.fast_math):
+            print(line)
+        return EXIT_OK
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
     render_options = render_options_from_args(args, scene)
@@ -404,7 +413,7 @@ def cmd_compare(args) -> int:
 
     integrators = parse_integrator_list(args.integrators)
     scene = load_scene_from_args(args)
-    check_fits(scene.data, integrators, args.precision, args.arch)
+    check_fits(scene.data, integrators, args.precision, args.arch, fast_math=args.fast_math)
     if args.video is None and args.frames is None:
         args.video = f"{DEFAULT_OUT}/compare-{scene.name}.mp4"
     render_options = render_options_from_args(args, scene)
@@ -565,7 +574,7 @@ def add_task_args(p: argparse.ArgumentParser):
 def cmd_demo(args) -> int:
     """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
     scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
-    check_fits(scene.data, None, args.precision, args.arch)
+    check_fits(scene.data, None, args.precision, args.arch, fast_math=args.fast_math)
     screenshot = check_output_path(args.screenshot, "--screenshot", [".png"])
     start_taichi(args)
     from .demo.app import run_demo
@@ -582,6 +591,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_args(p_run)
     p_run.add_argument("--summary", help="write a JSON run summary here")
     p_run.add_argument("--states", help="write sampled states (t, x, v) to this .npz")
+    p_run.add_argument("--dry-run", action="store_true",
+                       help="print what would be simulated and written and the memory estimate, then exit")
     add_render_args(p_run)
     p_run.set_defaults(func=cmd_run)
     p_cmp = sub.add_parser("compare", help="run one scene with several integrators at the same dt; write a mosaic video")
@@ -615,7 +626,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_bench.set_defaults(func=cmd_bench)
     p_gal = sub.add_parser("gallery", help="every terrain x integrator video, a compare mosaic per terrain, "
                                               "and an index.html that shows them all")
-    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl,torus)")
+    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl,torus,three_cubes,pile)")
     p_gal.add_argument("--integrators", metavar="A,B", help="comma-separated integrator names (default: all registered)")
     p_gal.add_argument("--duration", type=_float_arg("--duration"), help="simulated time [s] (default: each scene's)")
     p_gal.add_argument("--dt", type=_float_arg("--dt"),

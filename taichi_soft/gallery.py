@@ -23,8 +23,10 @@ from .tasks import Task, run_tasks
 # docs/benchmarks/stability_terrain.csv); implicit ones one step per 1/60 s, the step
 # docs/implicit.md tests them at (stable there to 0.1 s on every terrain).
 IMPLICIT_DT = 1.0 / 60.0
-# The scenes a plain `gallery` renders: the cube on each terrain, and a mesh body (the torus).
-DEFAULT_SCENES = ("plane", "tilted_plane", "sphere", "bowl", "torus")
+# The scenes a plain `gallery` renders: the cube on each terrain, a mesh body (the torus), and the
+# scenes of several bodies (body-body contact with every integrator: three cubes on the plane, a
+# pile of five in the bowl).
+DEFAULT_SCENES = ("plane", "tilted_plane", "sphere", "bowl", "torus", "three_cubes", "pile")
 DEFAULT_RESOLUTION = (640, 360)  # [px] of each single-run video; the mosaics are twice as wide and high
 PAGE = "index.html"
 MIN_ENERGY_SPAN = 1e-3  # smallest energy-axis range of the caption plots, relative to |E|

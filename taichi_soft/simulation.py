@@ -24,6 +24,11 @@ from .scene import Scene
 from .terrain import make_terrain
 
 
+# Wall time [s] of one launch of a run that keeps no frames (``Simulation._free_run``): long
+# enough that the per-launch cost vanishes, short enough for a live progress bar and Ctrl-C.
+FREE_RUN_SECONDS = 0.1
+
+
 def body_spec(body: dict) -> BodySpec:
     """A validated ``[[body]]`` table as a ``BodySpec``."""
     return BodySpec(
@@ -163,12 +168,17 @@ class Simulation:
     def run(self, duration: float, fps: float, on_frame=None, record: bool = False, progress=None) -> RunResult:
         """Step for ``duration`` [s], stopping at each output frame (``fps``) and on divergence.
 
-        ``on_frame(sim)`` is called at t = 0, at every frame and at the final state; with
+        Without ``on_frame`` and ``record`` nothing needs the frames, and the steps go in long
+        launches instead (``_free_run``). ``on_frame(sim)`` is called at t = 0, at every frame and
+        at the final state; with
         ``record`` the (t, x, v) of each of those is kept in ``RunResult.frames``. ``progress``,
         if given, is called as ``progress(steps_done, total_steps, sim)``.
         """
         total = step_count(duration, self.dt)
-        schedule = frame_steps(total, fps, self.dt)
+        if on_frame is None and not record:
+            schedule = None  # nobody looks at the frames: step in long launches (_free_run)
+        else:
+            schedule = frame_steps(total, fps, self.dt)
         frames = []
         start = time.perf_counter()
         base = self.steps
@@ -181,7 +191,9 @@ class Simulation:
                 on_frame(self)
 
         visit()
-        for target in schedule[1:]:
+        if schedule is None:
+            self._free_run(total, progress)
+        for target in schedule[1:] if schedule else ():
             want = base + target - self.steps
             self.advance(want)
             if self.diverged:
@@ -193,6 +205,23 @@ class Simulation:
                 progress(self.steps - base, total, self)
         wall = time.perf_counter() - start
         return RunResult(self.steps - base, self.time, wall, self.diverged, self.diverged_at, self.diverged_step, frames)
+
+    def _free_run(self, total: int, progress=None):
+        """``total`` steps with no frame stops, in launches of FREE_RUN_SECONDS of wall time or more.
+
+        Stopping at every output frame costs a launch and a few checks per frame (about 0.3 ms at
+        n = 10, where a 30 fps frame of 1 ms steps is 2-2.5 ms of work; docs/benchmarks/README.md,
+        issue 25). Chunks start at 16 steps and double while a launch takes less than
+        FREE_RUN_SECONDS, so the progress bar still moves.
+        """
+        base, chunk = self.steps, 16
+        while self.steps - base < total and not self.diverged:
+            t0 = time.perf_counter()
+            self.advance(min(chunk, total - (self.steps - base)))
+            if time.perf_counter() - t0 < FREE_RUN_SECONDS:
+                chunk *= 2
+            if progress is not None:
+                progress(self.steps - base, total, self)
 
     def suggest_dt(self) -> float:
         """A step [s] to try after a divergence (see ``divergence_hint``)."""

@@ -2,13 +2,11 @@
 
 A solver whose direction is an ascent direction (the rhs reversed) cannot decrease the step's
 objective: every iteration's line search fails. The driver must count each such step, and
-``health.assess`` must turn the counts into a warning and call the run meaningless; the real
-solvers on the same steps fail none.
+``health.assess`` must turn the counts into a warning and call the run meaningless (the real
+solvers fail no step: tests/test_f32_implicit.py).
 """
 import taichi as ti
 
-from physics_helpers import build, stretched
-from taichi_soft.integrators import make_integrator
 from taichi_soft.integrators.implicit.health import assess
 from taichi_soft.integrators.implicit.newton import ImplicitEuler
 
@@ -23,33 +21,30 @@ class _Uphill(ImplicitEuler):
             self.dx[i] = -self.rhs[i] * self.model.inv_mass[i]
 
 
-def _stretched_cube():
-    model, terrain = build(n=3, size=1.0, gravity=(0.0, -9.8, 0.0), stretch=(2000.0, 10.0),
-                           shear=(2000.0, 10.0), bend=(2000.0, 10.0))
-    state = model.state()
-    state.set(stretched(model, (1.2, 0.9, 1.0)), model.v0_np)
-    return model, terrain, state
+def test_failed_line_searches_are_said_and_the_run_exits_non_zero(monkeypatch, capsys, tmp_path):
+    """Through `run`: every step fails, so stderr says so, the summary counts it and calls the
+    result meaningless, and the exit status is EXIT_UNRELIABLE (6), not 0."""
+    import json
 
+    from taichi_soft import cli
+    from taichi_soft.integrators import REGISTRY
 
-def test_failed_line_searches_are_counted_and_make_the_run_meaningless():
-    model, terrain, state = _stretched_cube()
-    integ = _Uphill(model, terrain, None)
-    assert integ.advance(state, 0.01, 5) == 5
-    stats = integ.stats()
-    assert stats["failed_solve_steps"] == 5
-    assert stats["failed_solve_max_residual_m_s2"] > integ.options["newton_tol"]
-    lines, meaningless = assess(stats)
-    assert meaningless
-    assert len(lines) == 1 and lines[0].startswith("5 of 5 steps ended with a failed line search")
-
-
-def test_the_working_solver_fails_no_step():
-    model, terrain, state = _stretched_cube()
-    integ = make_integrator("implicit_euler", model, terrain)
-    assert integ.advance(state, 0.01, 5) == 5
-    stats = integ.stats()
-    assert stats["failed_solve_steps"] == 0 and stats["energy_clamped_steps"] == 0
-    assert assess(stats) == ([], False)
+    monkeypatch.setitem(REGISTRY, "uphill", _Uphill)
+    monkeypatch.setattr(_Uphill, "name", "uphill")
+    monkeypatch.setattr(cli, "start_taichi", lambda args: None)  # conftest's runtime is running
+    summary = tmp_path / "s.json"
+    code = cli.main(["run", "--set", "body.0.n=3", "--set", "body.0.initial_stretch=[1.2, 0.9, 1.0]",
+                     "--integrator", "uphill", "--dt", "0.01", "--duration", "0.05", "--summary", str(summary)])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_UNRELIABLE == 6, err
+    assert "warning: plane/uphill: 5 of 5 steps ended with a failed line search" in err
+    assert "result is meaningless" in err
+    s = json.loads(summary.read_text())
+    assert s["meaningless"] is True and len(s["solver_warnings"]) == 1
+    assert s["integrator_stats"]["failed_solve_steps"] == 5
+    assert s["integrator_stats"]["failed_solve_max_residual_m_s2"] > ImplicitEuler.OPTIONS["newton_tol"][0]
+    lines, meaningless = assess(s["integrator_stats"])
+    assert meaningless and lines == s["solver_warnings"]
 
 
 def test_a_clamp_on_many_steps_is_reported():

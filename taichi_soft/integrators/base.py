@@ -25,7 +25,7 @@ import numpy as np
 import taichi as ti
 
 from ..errors import UserError
-from ..forces import ForceEvaluator
+from ..forces import ForceEvaluator, auto_strategy
 
 # Parallel launches win above this many particles on a CPU. Implicit solvers (many launches per
 # step in parallel mode): 4096. Explicit methods, semi-implicit Euler on the 2-core VM, f64,
@@ -102,8 +102,6 @@ class Integrator:
         if n_steps <= 0 or self.diverged:
             return 0
         start = self._step_counter
-        if self.forces is not None:
-            self.forces.refresh()
         x, v = state.x, state.v
         if self.ping_pong:
             xo, vo = self._xo, self._vo
@@ -156,10 +154,8 @@ class Integrator:
     def _force_strategy(self) -> str:
         if self.options["forces"] != "auto":
             return self.options["forces"]
-        # CPU: scatter measured fastest at every size in both launch modes (docs/benchmarks).
-        # GPU: the slab passes would run one slab per thread; a gather keeps every thread busy.
-        on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
-        return "scatter" if on_cpu else "gather"
+        cfg = ti.lang.impl.current_cfg()
+        return auto_strategy("cpu" if cfg.arch in (ti.x64, ti.arm64) else "gpu", cfg.fast_math)
 
     def _serial(self) -> bool:
         if self.mode == "auto":
@@ -169,6 +165,7 @@ class Integrator:
 
     @ti.kernel
     def _advance_serial(self, x: ti.template(), v: ti.template(), dt: float, start: ti.i32, n_steps: ti.i32):
+        self._refresh()
         ti.loop_config(serialize=True)
         for s in range(n_steps):
             self._step_body(x, v, dt, start + s)
@@ -178,12 +175,14 @@ class Integrator:
 
     @ti.kernel
     def _advance_parallel(self, x: ti.template(), v: ti.template(), dt: float, step: ti.i32):
+        self._refresh()
         self._step_body(x, v, dt, step)
         self._body_contacts(x, v, dt)
 
     @ti.kernel
     def _advance_serial_pp(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template(), dt: float,
                            start: ti.i32, n_steps: ti.i32):
+        self._refresh()
         ti.loop_config(serialize=True)
         for s in range(n_steps):
             if s % 2 == 0:
@@ -202,8 +201,18 @@ class Integrator:
     @ti.kernel
     def _advance_parallel_pp(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template(),
                              dt: float, step: ti.i32):
+        self._refresh()
         self._step_into(x, v, xo, vo, dt, step)
         self._body_contacts(xo, vo, dt)
+
+    @ti.func
+    def _refresh(self):
+        """Explicit methods: bring the force pass's copies of k, kd up to date (forces.refresh)."""
+        if ti.static(self._has_forces()):
+            self.forces.refresh()
+
+    def _has_forces(self) -> bool:
+        return self.forces is not None
 
     @ti.kernel
     def _copy_state(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template()):

@@ -25,6 +25,7 @@ from ..base import Integrator
 from . import slots as S
 from .contact import ContactSet
 from .objective import Objective
+from .pairs import PairContacts
 
 
 @ti.data_oriented
@@ -84,6 +85,27 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.release_tol[None] = max(self._tol(), 0.1)
         self._mass_version = None
 
+    # Body-body contact lives inside the step (pairs.py): setting ``contacts`` (Simulation does, for
+    # a scene with several bodies, before the first step) builds the pair terms; None builds none,
+    # so a one-body scene compiles no pair code. The explicit methods' pass after the step is not run.
+    @property
+    def contacts(self):
+        return self._contacts
+
+    @contacts.setter
+    def contacts(self, value):
+        self._contacts = value
+        self.pairs = None
+        if value is not None and self.options["body_contact"]:
+            self.pairs = PairContacts(self, self.options["contact_stiffness"])
+
+    def _has_pairs(self) -> bool:
+        return self.pairs is not None
+
+    @ti.func
+    def _body_contacts(self, x: ti.template(), v: ti.template(), dt):
+        pass  # inside the step (pairs.py)
+
     def _tol(self) -> float:
         raise NotImplementedError
 
@@ -142,6 +164,8 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = 0
                     self.lam[i] = 0.0
+        if ti.static(self._has_pairs()):
+            self.pairs.begin(self.x_prev, self.yd, self.dx)
         for k in ti.static(range(S.N_CTL)):
             self.ctl[k] = 0
         self.sc[S.RES_PREV] = 1e30  # no release before a residual is known
@@ -367,11 +391,17 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         self.sc[S.BOUNCE_B] = 0.0
         self.sc[S.K_SOLVE] = 0.0
         self.sc[S.G_END] = 0.0
+        if ti.static(not self.terrain.has_contact):
+            self._translation_minimum(x)
+        if ti.static(self._has_pairs()):
+            self.pairs.end(x, dt)
         for i in range(self.n):
             vi = self.u[i] / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
                 delta = self._bounce(i, vi)
+            if ti.static(self._has_pairs()):
+                delta += self.pairs.dv[i]
             self.v_new[i] = vi
             self.dv[i] = delta
             if self._free(i):
@@ -381,7 +411,7 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
                 self.sc[S.BOUNCE_B] += mi * vi.dot(delta)
                 self.sc[S.G_END] -= mi * g.dot(self.u[i])
         scale = ti.cast(1.0, float)
-        if ti.static(self.terrain.has_contact):
+        if ti.static(self.terrain.has_contact or self._has_pairs()):
             lost = self.sc[S.H_START] - (self.sc[S.K_SOLVE] + self.sc[S.G_END] + self.sc[S.E_CUR])
             scale = self._bounce_scale(lost)
         self.sc[S.K_END] = 0.0
@@ -415,8 +445,6 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             self._k_begin(state.x, state.v, dt)
             self._solve_python(state.x, dt)
             self._k_end(state.x, state.v, dt, start + k)
-            if self._has_contacts():
-                self._k_body_contacts(state.x, state.v, dt)  # every step ends with body contacts
             if self.diverged:
                 break
         self._step_counter += n_steps
@@ -434,6 +462,8 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         super().reset()
         self.acc.fill(0)
         self.lam.fill(0)  # no warm start from before the reset
+        if self.pairs is not None:
+            self.pairs.reset()
         self.n_history[None] = 0
 
     def residual(self) -> float:
@@ -510,4 +540,5 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
             "friction_updates_per_step": a[S.A_UPDATES] / steps,
             "energy_clamped_steps": int(a[S.A_CLAMPED]),
             "restitution_limited_steps": int(a[S.A_BOUNCE]),
+            **(self.pairs.stats(steps) if self.pairs is not None else {}),
         }

@@ -87,6 +87,8 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 q -= self.group_c[m.adj_group[e]] * src[m.adj_other[e]]
             dst[i] = self._filter(i, q)
+        if ti.static(self._has_pairs()):
+            self.pairs.apply(src, dst)
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):
@@ -146,7 +148,9 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         if ti.static(self.global_solver == "cholesky"):
             if self.sc[S.N_ACTIVE] == 0:
                 self.chol.solve(self.rhs, self.dx)  # nothing held: the factorisation is exact
-            elif ti.static(self.scaled_contact):
+            elif ti.static(self.scaled_contact) and self.sc[S.N_PAIRS] == 0:
+                # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry
+                # the stiff pair penalty, and local/global then stalled at the velocity test)
                 self._scaled_direction()
             else:
                 self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
@@ -158,7 +162,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     def _global_step_python(self):
         if self.global_solver == "cholesky" and self.sc[S.N_ACTIVE] == 0:
             self.chol.solve_kernel(self.rhs, self.dx)
-        elif self.scaled_contact:
+        elif self.scaled_contact and self.sc[S.N_PAIRS] == 0:
             self._k_scaled_direction()
         else:
             self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))

@@ -12,7 +12,7 @@ RES_PREV = 2  # residual [m/s^2] of the last gradient (release margin of the act
 F_CUR = 3  # objective at the current iterate [kg m^2]
 F_TRIAL = 4  # objective at the line-search trial point
 DEC = 5  # grad . (x_trial - x): first-order decrease predicted for the trial [kg m^2]
-N_ACTIVE = 6  # particles held on the terrain after the last gradient
+N_ACTIVE = 6  # particles held on the terrain, plus body-body pairs in contact, after the last gradient
 ALPHA = 7  # line-search step fraction of the trial
 STEP = 8  # largest particle move of the last accepted update [m]
 STEP_TRIAL = 9  # largest particle move of the trial [m]
@@ -30,7 +30,8 @@ K_SOLVE = 21  # kinetic energy of the solved velocities [J]
 G_END = 22  # gravity energy at the end, from x_n: -sum m g . (x - x_n) [J]
 K_END = 23  # kinetic energy after the collision response [J]
 H2_PREV = 24  # h^2 of the previous step [s^2] (the multipliers kept for the warm start are in its units)
-N_SC = 25
+N_PAIRS = 25  # body-body pairs in contact after the last gradient (pairs.py; also counted in N_ACTIVE)
+N_SC = 26
 
 # ctl: ints
 DONE = 0  # 1: the step's iteration is over
