@@ -2,8 +2,8 @@
 
 A mesh body (``shape = "mesh"``, ``meshbody.py``) is simulated as a lattice of particles; what
 it looks like is the mesh it was made from. Each vertex of that mesh is a fixed weighted sum of
-particles (trilinear weights of its lattice cell, or affine weights over its nearest particles
-in boundary cells that miss corners: ``meshbody.MeshLattice.embed_*``), so the surface follows
+particles (trilinear weights of its lattice cell, or affine weights over the particles nearest
+its cell in boundary cells that miss corners: ``meshbody.MeshLattice.embed_*``), so the surface follows
 the lattice as it bends, squashes and rotates.
 
 ``EmbeddedSurface`` has the interface of ``meshes.SurfaceMesh`` (vertices, normals, indices,
