@@ -1,13 +1,14 @@
 """The step's objective: inertia, springs, dampers and contact friction, its gradient and values.
 
-    g(x) = 1/2 (x - y)^T M (x - y) + h^2 E(x) + h^2 D(x) + sum_held mu lam_i f0(|u_t,i|)
+    g(x) = 1/2 (x - y)^T M (x - y) + h^2 E(x) + h^2 D(x) + sum_held mu lam_i f0(|u_t,i|) [+ grab]
     y = x_n + h v_n + h^2 g_grav,  u = x - x_n
 
 E: Hooke springs, sum_s k_s/2 (|x_a - x_b| - r_s)^2. D: the dampers' Rayleigh dissipation with
 each damper direction l_s frozen at x_n, h^2 D = sum_s h kd_s/2 (l_s . (u_a - u_b))^2 (its
 gradient / h^2 is the seed's damper force at v = u/h). Friction: the lagged dissipative potential
 of IPC (Li et al. 2020) with each held particle's multiplier lam_i (h^2 |F_n|) frozen for the
-solve (see contact.py); f0 is the Huber function with length friction_velocity * h.
+solve (see contact.py); f0 is the Huber function with length friction_velocity * h. A model with
+a grab (grab.py) adds its spring (counted in E) and damper for the grabbed particle.
 
 Every term is zero or minimal at x_n except inertia and springs, and the friction term is zero at
 x_n for any multiplier, so g(x) <= g(x_n) bounds the energy a step can store whatever the
@@ -36,7 +37,9 @@ class Objective:
         self.x_trial = vec(n)  # line-search trial point [m]
         self.spring_dir = vec(m)  # damper direction l_s at x_n (frozen over the step)
         self.spring_grad = vec(m)  # d(h^2 (E + D))/dx_a per spring [kg m]
-        self.fric_hess = ti.Matrix.field(3, 3, float, n)  # Hessian block of a held particle's friction [kg]
+        # Hessian block of a particle's terms outside the springs [kg]: a held particle's friction,
+        # the grab (grab.py); the constant matrix of fast_mass_spring does not contain them.
+        self.fric_hess = ti.Matrix.field(3, 3, float, n)
         self.fric_eps = ti.field(float, ())  # friction smoothing length friction_velocity * h [m]
         self.friction_velocity = ti.field(float, ())  # [m/s], from the option (a field: read in kernels)
         self.total_mass = ti.field(float, ())  # sum of free particles' masses [kg] (see _sync_masses)
@@ -116,6 +119,8 @@ class Objective:
             if self._free(i):
                 if ti.static(self.terrain.has_contact):
                     gi = self._contact_gradient(i, x[i], gi, dt)
+                if ti.static(self.model.has_grab()):
+                    gi = self._grab_gradient(i, x[i], gi, dt)
                 r = -gi
                 if ti.static(self.terrain.has_contact):
                     if self.active[i]:
@@ -147,6 +152,10 @@ class Objective:
             if self._free(i):
                 diff = xi - self.y[i]
                 self.sc[S.F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff)
+                if ti.static(self.model.has_grab()):
+                    gv, _gg, _gh = m.grab.step_terms(i, xi, self.x_prev[i], dt)
+                    self.sc[S.F_TRIAL] += gv
+                    self.sc[S.E_TRIAL] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
                     if self.lam[i] > 0:  # held when lam was frozen, hence held here too
                         fe, _fg, _fh = self._friction(i, xi, self.trial_normal[i], self.lam[i])
@@ -162,6 +171,21 @@ class Objective:
             es = spring_energy(m, self.x_trial, a, b, m.spring_rest[s], grp)
             self.sc[S.E_TRIAL] += es
             self.sc[S.F_TRIAL] += dt * dt * es + 0.5 * dt * m.group_kd[grp] * lu * lu
+
+    @ti.func
+    def _grab_gradient(self, i, xi, gi, dt):
+        """gi plus the grab's gradient (grab.py); its Hessian goes with the friction block. While
+        particle i is grabbed it counts in ``N_ACTIVE``: fast_mass_spring's prefactored matrix lacks
+        the grab's diagonal term, so it takes its held-particle path (the factor as a
+        preconditioner), as for a particle held by friction."""
+        _gv, gg, gh = self.model.grab.step_terms(i, xi, self.x_prev[i], dt)
+        fh = ti.Matrix.zero(float, 3, 3)
+        if ti.static(self.terrain.has_contact):
+            fh = self.fric_hess[i]  # this gradient's friction block (_contact_gradient)
+        self.fric_hess[i] = fh + gh * ti.Matrix.identity(float, 3)
+        if gh > 0:
+            self.sc[S.N_ACTIVE] += 1.0
+        return gi + gg
 
     @ti.func
     def _residual(self):
