@@ -265,6 +265,7 @@ class DemoController:
             return
         self.sim.model.set_particle_mass(float(mass))
         self._mass_applied = mass
+        self.grab.set_stiffness(self.settings.grab_stiffness)  # its damper follows the mass
 
     @recorded
     def set_gravity(self, magnitude: float):

@@ -492,6 +492,45 @@ def check_hands(s: Session, yank_integrator: str = "explicit_euler", yank_dt: fl
     return results, {"yank": getattr(s, "result", None)}
 
 
+def measure_timing(s: Session, blocks: int = 4, frames: int = 30) -> dict:
+    """The frame timer's breakdown [ms, medians] while playing, alternating blocks of ``frames``
+    frames with the body left alone and with a top corner grabbed and dragged (the pointer moving
+    every frame); also the press frames' input part (picking) and each block's cost per step."""
+    ctl, app = s.ctl, s.app
+    s.calibrate()
+    s.pointer_to_scene()
+    if ctl.settings.paused:
+        s.press(" ")
+    s.frames(10)  # warm: every kernel compiled
+    out = {"idle": [], "drag": [], "press_input_ms": []}
+    for b in range(2 * blocks):
+        mode = "idle" if b % 2 == 0 else "drag"
+        if mode == "drag":
+            corner = top_corners(s)[0]
+            px, py = s.pixel(s.positions()[corner])
+            s.move(px, py)
+            s.frames(1)
+            s.x.button("LMB", True)
+            s.frames(1)
+            out["press_input_ms"].append(1e3 * app.timer.frames[-1].get("input", 0.0))
+            assert ctl.grab.held is not None, "the press grabbed nothing"
+        app.timer.frames.clear()
+        steps0 = ctl.sim.steps
+        for k in range(frames):
+            if mode == "drag":
+                s.move(px + (k % 10) * 3, py - 3 * k)
+            s.frames(1)
+        m = app.timer.medians_ms()
+        m["ms_per_step"] = m["simulation"] * frames / max(ctl.sim.steps - steps0, 1)
+        out[mode].append(m)
+        if mode == "drag":
+            s.x.button("LMB", False)
+            s.frames(2)
+    summary = {mode: {k: float(np.median([m[k] for m in out[mode]])) for k in out[mode][0]} for mode in ("idle", "drag")}
+    summary["press_input_ms"] = out["press_input_ms"]
+    return summary
+
+
 def soak(s: Session, minutes: float, seed: int = 0) -> dict:
     """Random keys and button clicks for ``minutes``; returns how many of each kind were done
     (``keys``, ``clicks``, ``recordings`` toggled, and the ``integrators`` and ``terrains``
@@ -549,6 +588,8 @@ def main(argv=None) -> int:
     p.add_argument("--yank", default="explicit_euler:0.002:1e5", metavar="INTEGRATOR:DT:K",
                    help="--hands: the hard yank's integrator, dt [s] and grab stiffness [N/m]")
     p.add_argument("--record", metavar="SESSION.json", help="record the session's inputs (as demo --record)")
+    p.add_argument("--timing", action="store_true",
+                   help="measure the frame timer's breakdown idle and while dragging; print it and exit")
     args = p.parse_args(argv)
     size = parse_resolution(args.resolution)
     init("cpu", "f64")
@@ -562,7 +603,10 @@ def main(argv=None) -> int:
     session = Session(app, xin)
     report = {"checks": {}, "actions": {}}
     try:
-        if args.hands:
+        if args.timing:
+            report["timing"] = measure_timing(session)
+            escape = _escape_check(session)
+        elif args.hands:
             name, dt, k = args.yank.split(":")
             report["checks"], report["actions"] = check_hands(session, name, float(dt), float(k))
             escape = _escape_check(session)
