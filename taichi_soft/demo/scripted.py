@@ -170,6 +170,22 @@ def _latest(pattern: str, before: set) -> Path | None:
     return new[-1] if new else None
 
 
+def run_checks(app, checks) -> dict:
+    """Run each (name, fn) in turn while the window is open; returns name -> "ok" or the failure
+    (every check is reported, not just the first failure)."""
+    results = {}
+    for name, fn in checks:
+        if not app.window.running:
+            results[name] = "not run: the window closed"
+            continue
+        try:
+            fn()
+            results[name] = "ok"
+        except Exception as e:  # noqa: BLE001
+            results[name] = f"{type(e).__name__}: {e}".splitlines()[0]
+    return results
+
+
 def _escape_check(s: Session):
     def escape_quits():
         s.x.key("Escape", True)
@@ -187,15 +203,6 @@ def _escape_check(s: Session):
 def check_every_control(s: Session) -> dict:
     """Press every advertised key and click panel buttons; returns control -> "ok" or the failure."""
     ctl, app = s.ctl, s.app
-    results = {}
-
-    def check(name, fn):
-        try:
-            fn()
-            results[name] = "ok"
-        except Exception as e:  # noqa: BLE001 - report every control, not just the first failure
-            results[name] = f"{type(e).__name__}: {e}".splitlines()[0]
-
     s.calibrate()
     s.pointer_to_scene()
     s.frames(3)
@@ -312,18 +319,14 @@ def check_every_control(s: Session) -> dict:
 
     escape_quits = _escape_check(s)
 
-    for name, fn in (("start paused", start_paused), ("Space plays", space_plays),
-                     ("Space pauses, plot history kept", pause_keeps_history), ("N single step", n_steps),
-                     ("M slow motion", m_slow_motion), ("F O J K L draw toggles", draw_keys),
-                     ("W A S D Q E move the camera", camera_keys), ("right-drag turns the view", right_drag),
-                     ("C resets the camera", c_resets_camera), ("P screenshot", p_screenshot),
-                     ("Screenshot button", screenshot_button), ("integrator button", integrator_button),
-                     ("V records", v_records), ("R resets, paused", r_restarts_paused)):
-        if not app.window.running:
-            results[name] = "not run: the window closed"
-            continue
-        check(name, fn)
-    return results, escape_quits
+    checks = (("start paused", start_paused), ("Space plays", space_plays),
+              ("Space pauses, plot history kept", pause_keeps_history), ("N single step", n_steps),
+              ("M slow motion", m_slow_motion), ("F O J K L draw toggles", draw_keys),
+              ("W A S D Q E move the camera", camera_keys), ("right-drag turns the view", right_drag),
+              ("C resets the camera", c_resets_camera), ("P screenshot", p_screenshot),
+              ("Screenshot button", screenshot_button), ("integrator button", integrator_button),
+              ("V records", v_records), ("R resets, paused", r_restarts_paused))
+    return run_checks(app, checks), escape_quits
 
 
 def top_corners(s: Session) -> list[int]:
@@ -345,15 +348,6 @@ def check_hands(s: Session, yank_integrator: str = "explicit_euler", yank_dt: fl
     air above the floor, paused. Returns (check -> "ok" or the failure, {"yank": "held" or
     "diverged, reset"})."""
     ctl, app = s.ctl, s.app
-    results = {}
-
-    def check(name, fn):
-        try:
-            fn()
-            results[name] = "ok"
-        except Exception as e:  # noqa: BLE001 - report every check
-            results[name] = f"{type(e).__name__}: {e}".splitlines()[0]
-
     s.calibrate()
     s.pointer_to_scene()
     s.frames(3)
@@ -479,22 +473,18 @@ def check_hands(s: Session, yank_integrator: str = "explicit_euler", yank_dt: fl
             assert np.isfinite(s.positions()).all(), "non-finite state without a divergence message"
             s.result = "held"
 
-    for name, fn in (("Shift+click pins two corners, it hangs", pins_hold_and_hang),
-                     ("X clears the pins, it falls", x_clears_pins_and_it_falls),
-                     ("R clears pins", reset_clears_pins),
-                     ("drag a top corner up, release", drag_up_and_release),
-                     ("click pokes", click_pokes),
-                     (f"hard yank with {yank_integrator} at dt {yank_dt:g} s", hard_yank)):
-        if not app.window.running:
-            results[name] = "not run: the window closed"
-            continue
-        check(name, fn)
-    return results, {"yank": getattr(s, "result", None)}
+    checks = (("Shift+click pins two corners, it hangs", pins_hold_and_hang),
+              ("X clears the pins, it falls", x_clears_pins_and_it_falls),
+              ("R clears pins", reset_clears_pins),
+              ("drag a top corner up, release", drag_up_and_release),
+              ("click pokes", click_pokes),
+              (f"hard yank with {yank_integrator} at dt {yank_dt:g} s", hard_yank))
+    return run_checks(app, checks), {"yank": getattr(s, "result", None)}
 
 
 def measure_timing(s: Session, blocks: int = 4, frames: int = 30) -> dict:
     """The frame timer's breakdown [ms, medians] while playing, alternating blocks of ``frames``
-    frames with the body left alone and with a top corner grabbed and dragged (the pointer moving
+    frames with the body left alone and with its top face's centre grabbed and dragged (the pointer moving
     every frame); also the press frames' input part (picking) and each block's cost per step."""
     ctl, app = s.ctl, s.app
     s.calibrate()
@@ -506,8 +496,9 @@ def measure_timing(s: Session, blocks: int = 4, frames: int = 30) -> dict:
     for b in range(2 * blocks):
         mode = "idle" if b % 2 == 0 else "drag"
         if mode == "drag":
-            corner = top_corners(s)[0]
-            px, py = s.pixel(s.positions()[corner])
+            x = s.positions()
+            top = int(np.argmin(np.linalg.norm(x - [x[:, 0].mean(), x[:, 1].max(), x[:, 2].mean()], axis=1)))
+            px, py = s.pixel(x[top])  # the top face's centre: well inside the silhouette
             s.move(px, py)
             s.frames(1)
             s.x.button("LMB", True)
