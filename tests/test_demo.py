@@ -161,7 +161,7 @@ def test_hud_lines_say_time_pace_energy_and_solver_iterations(fresh):
     lines = hud.status_lines(fresh, pacer, {"steps": 10, "newton_iterations_per_step": 2.0,
                                             "cg_iterations_per_step": 14.5})
     assert lines[0].startswith("t =") and "semi_implicit_euler" in lines[0] and "dt = 0.001 s" in lines[0]
-    assert lines[2].startswith("E = ") and "kin" in lines[2] and "spring" in lines[2] and "grav" in lines[2]
+    assert lines[2].startswith("E - E(0) = ") and "kin" in lines[2] and "spring" in lines[2] and "grav" in lines[2]
     assert lines[3] == "iterations per step: Newton 2.0, CG 14.5"
     assert hud.pace_text(True, 1.0, 0.0, 0.0, False) == "PAUSED"
     assert "2.5x slower" in hud.pace_text(False, 1.0, 0.4, 400.0, True)
@@ -527,3 +527,49 @@ def test_replay_refuses_what_it_cannot_play(tmp_path):
                               capture_output=True, text=True, timeout=120)
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(lines) == 1 and says in lines[0], (args, proc.stderr)
+
+
+def test_duration_stops_the_demo_there_and_r_restarts(fresh):
+    """Issue 24: `demo --duration` was accepted and ignored; the simulation now stops at it."""
+    fresh.settings.duration = 0.05
+    try:
+        assert fresh.step(1000) == 50
+        assert fresh.sim.time == pytest.approx(0.05) and fresh.message is None
+        assert fresh.step(10) == 0 and fresh.sim.time == pytest.approx(0.05)
+        assert fresh.message.startswith("stopped at t = 0.050 s, the end of --duration 0.05 s") and fresh.settings.paused
+        fresh.reset()
+        assert fresh.message is None and fresh.step(20) == 20
+    finally:
+        fresh.settings.duration = None
+
+
+def test_demo_passes_its_duration_to_the_window(monkeypatch):
+    from taichi_soft import cli
+    from taichi_soft.demo import app
+
+    seen = {}
+    monkeypatch.setattr(cli, "start_taichi", lambda args: None)
+    monkeypatch.setattr(app, "run_demo", lambda *a, **kw: seen.update(kw))
+    assert cli.main(["demo", "--set", "body.0.n=3", "--duration", "0.25"]) == 0
+    assert seen["duration"] == 0.25
+    assert cli.main(["demo", "--set", "body.0.n=3"]) == 0
+    assert seen["duration"] is None  # no --duration: the demo runs on (the scene's duration is for `run`)
+
+
+def test_energies_are_shown_as_changes_since_the_start(fresh):
+    """Issue 24: the HUD's energies were totals against y = 0 (kJ of gravity energy that hid the
+    changes); they are now changes since t = 0, in the text and in the plot (legend says so)."""
+    pacer = Pacer()
+    assert hud.status_lines(fresh, pacer)[2] == "E - E(0) = 0 J = kin 0 + spring 0 + grav 0"
+    start = dict(fresh.last_measures)
+    fresh.step(100)
+    m = fresh.sample()
+    line = hud.status_lines(fresh, pacer)[2]
+    d = {k: m[k] - start[k] for k in hud.ENERGY_KEYS}
+    assert d["gravity_energy"] < -1.0 and d["kinetic_energy"] > 1.0  # falling
+    assert line == (f"E - E(0) = {hud.energy_text(d['total_energy'])} J = kin {hud.energy_text(d['kinetic_energy'])} "
+                    f"+ spring {hud.energy_text(d['spring_energy'])} + grav {hud.energy_text(d['gravity_energy'])}")
+    plot = dict(hud.energy_plot(fresh.history, (0, 0, 100, 50)))
+    first_y = {k: p[0, 1] for k, p in plot.items()}
+    assert len(set(np.round(list(first_y.values()), 9))) == 1  # every series starts at the same zero line
+    assert hud.PLOT_TITLE == "change since t = 0:"

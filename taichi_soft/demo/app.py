@@ -408,16 +408,16 @@ class DemoApp:
 
 
 def run_demo(scene="plane", overrides=(), integrator=None, dt=None, size=(1280, 800), frames=None, screenshot=None,
-             paused=False, record=None):
+             paused=False, duration=None, record=None):
     """Open the window, build the simulation and run (Taichi must be initialised); ``paused``:
-    start paused (Space plays); ``record``: save the session's inputs to this JSON file at the end
-    (``session``).
+    start paused (Space plays); ``duration`` [s]: stop the simulation there (None: run on);
+    ``record``: save the session's inputs to this JSON file at the end (``session``).
 
     The window comes first: without a display or Vulkan that fails in one line before seconds
     of kernel compilation.
     """
     window = open_demo_window("taichi-soft demo", size)
-    ctl = DemoController(scene, overrides, integrator, dt, paused=paused)
+    ctl = DemoController(scene, overrides, integrator, dt, paused=paused, duration=duration)
     app = DemoApp(ctl, size, window)
     if record is not None:
         start_session(app, record)
@@ -431,7 +431,8 @@ def start_session(app: DemoApp, path):
 
     ctl = app.ctl
     setup = {"scene": ctl.scene_name, "overrides": list(ctl.overrides), "integrator": ctl.settings.integrator,
-             "dt": ctl.settings.dt, "paused": ctl.settings.paused, "resolution": list(app.size),
+             "dt": ctl.settings.dt, "paused": ctl.settings.paused, "duration": ctl.settings.duration,
+             "resolution": list(app.size),
              **{k: v for k, v in (runtime.current() or {}).items() if k in ("arch", "precision", "fast_math")}}
     app.session = SessionRecorder(path, setup)
     ctl.recorder = app.session

@@ -89,6 +89,7 @@ class Settings:
     gravity: float  # magnitude [m/s^2] along the scene's gravity direction
     paused: bool = False
     slow_motion: float = 1.0  # simulated seconds per wall-clock second wanted (1 = real time)
+    duration: float | None = None  # [s] simulated time after which the demo stops (None: runs on)
     grab_stiffness: float = 1000.0  # [N/m] of the spring pulling a grabbed particle to the cursor
     poke_speed: float = 3.0  # [m/s] velocity a poke adds to the poked particle
 
@@ -99,12 +100,17 @@ class EnergyHistory:
 
     t: list = field(default_factory=list)
     values: dict = field(default_factory=lambda: {k: [] for k in ENERGY_KEYS})
+    # The energies of the first sample since the last clear (the start, t = 0): the HUD shows
+    # changes from them, which do not depend on where gravity's zero is.
+    start: dict | None = None
 
     def add(self, time: float, measures: dict):
         """Append a sample at simulated ``time`` [s]; a sample at the time already last is not
         added again (a paused demo keeps the history it had when paused)."""
         if self.t and self.t[-1] == time:
             return
+        if self.start is None:
+            self.start = {k: measures[k] for k in ENERGY_KEYS}
         self.t.append(time)
         for k in ENERGY_KEYS:
             self.values[k].append(measures[k])
@@ -114,6 +120,7 @@ class EnergyHistory:
                 del self.values[k][0]
 
     def clear(self):
+        self.start = None
         self.t.clear()
         for k in ENERGY_KEYS:
             self.values[k].clear()
@@ -127,7 +134,7 @@ class DemoController:
     """
 
     def __init__(self, scene: str = "plane", overrides=(), integrator: str | None = None, dt: float | None = None,
-                 paused: bool = False):
+                 paused: bool = False, duration: float | None = None):
         self.scene_name = scene
         self.overrides = list(overrides)
         base = self._load(self.overrides)
@@ -142,7 +149,8 @@ class DemoController:
             stiffness={kind: float(body[kind]["k"]) for kind in SPRING_KINDS},
             damping=float(body["stretch"]["damping"]), restitution=float(base.data["contact"]["restitution"]),
             friction=float(base.data["contact"]["friction"]), particle_mass=float(body["particle_mass"]),
-            height=float(body["center"][1]), rotation=float(body["rotation"]["degrees"]), gravity=g, paused=paused)
+            height=float(body["center"][1]), rotation=float(body["rotation"]["degrees"]), gravity=g, paused=paused,
+            duration=duration)
         if self.settings.integrator not in REGISTRY:
             raise UserError(f"unknown integrator {self.settings.integrator!r}; choose one of: {', '.join(REGISTRY)}")
         self.message: str | None = None  # why the simulation stopped (divergence or error)
@@ -341,6 +349,12 @@ class DemoController:
         """
         if self.message or n <= 0:
             return 0
+        end = self.settings.duration
+        if end is not None:  # --duration: stop there, as `run` does (R restarts)
+            n = min(n, math.floor((end - self.sim.time) / self.sim.dt + 1e-9))
+            if n <= 0:
+                self._stop(f"stopped at t = {self.sim.time:.3f} s, the end of --duration {end:g} s; R restarts")
+                return 0
         try:
             done = self.sim.advance(int(n))
         except Exception as e:  # noqa: BLE001 - the window must survive any engine error

@@ -10,8 +10,8 @@ same steps with the same inputs and ends in the same state (the file keeps the l
 positions and the replay checks them); the video shows each frame for as long as it was on screen
 live.
 
-File (JSON): {"format", "version", "setup": {scene, overrides, integrator, dt, paused, resolution,
-precision}, "frames": [{"t", "ops": [[name, args, kwargs], ...], "camera": [eye, lookat, up, fov],
+File (JSON): {"format", "version", "setup": {scene, overrides, integrator, dt, paused, duration,
+resolution, arch, precision, fast_math}, "frames": [{"t", "ops": [[name, args, kwargs], ...], "camera": [eye, lookat, up, fov],
 "draw": {...}}], "final": {"time", "steps", "x"}}.
 """
 from __future__ import annotations
@@ -132,7 +132,7 @@ def replay(data: dict, video: Path, window=None) -> dict:
     size = tuple(setup["resolution"])
     window = window or open_window(size[0], size[1], "taichi-soft replay", visible=False)
     ctl = DemoController(setup["scene"], setup.get("overrides", []), setup.get("integrator"), setup.get("dt"),
-                         paused=bool(setup.get("paused")))
+                         paused=bool(setup.get("paused")), duration=setup.get("duration"))
     app = DemoApp(ctl, size, window)
     now = [0.0]
     app.pacer = Pacer(clock=lambda: now[0])  # the HUD's pace line in the live session's time

@@ -29,6 +29,8 @@ class TriMesh:
     triangles [m, 3] vertex indices wound counter-clockwise seen from the normal's side.
 
     GGUI culls no faces; ``two_sided`` lights a face seen from behind with its normal flipped.
+    ``closed``: the surface encloses a volume, so faces seen from behind are always hidden (the
+    Taichi rasterizer skips them).
     """
 
     vertices: np.ndarray
@@ -36,6 +38,7 @@ class TriMesh:
     colors: np.ndarray
     triangles: np.ndarray
     two_sided: bool = False
+    closed: bool = False
 
 
 def _checker_grid(position, normal, nu: int, nv: int, colors, tile: int = 1, two_sided=False) -> TriMesh:
@@ -103,7 +106,9 @@ def _sphere_patch(center, radius, lat_lo, lat_hi, n_lon, n_lat, inward, colors, 
 def sphere_mesh(center, radius) -> TriMesh:
     """The whole ball, seen from outside. 96 x 48 cells: the flat facets sag at most
     r (1 - cos(pi / 96)) = 0.05 % of r below the true sphere the bodies rest on."""
-    return _sphere_patch(center, radius, -math.pi / 2, math.pi / 2, 96, 48, False, CHECKER, tile=4)
+    ball = _sphere_patch(center, radius, -math.pi / 2, math.pi / 2, 96, 48, False, CHECKER, tile=4)
+    ball.closed = True
+    return ball
 
 
 def bowl_mesh(center, radius) -> TriMesh:
