@@ -18,12 +18,14 @@ from pathlib import Path
 
 from .errors import OutputError, Terminated, UserError
 from .memory import check_fits
-from .outfiles import probe_writable, write_atomic
+from .outfiles import probe_writable, remove_stale_temps, write_atomic
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, EXIT_TASKS_FAILED = 0, 2, 3, 4, 5
+EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, EXIT_TASKS_FAILED, EXIT_UNRELIABLE = 0, 2, 3, 4, 5, 6
+EXIT_REPLAY_DIFFERS = 7  # demo --replay ended in another state than the recorded session
 # The main job (`python main.py`): the assignment's cube dropped on the plane.
 DEFAULT_SCENE, DEFAULT_INTEGRATOR = "plane", "rk4"
 DEFAULT_COMPARE = "explicit_euler,semi_implicit_euler,midpoint,rk4"
+DEFAULT_OUT = "out"  # the default outputs' folder, created when missing (no other folder is)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -33,9 +35,23 @@ class _Parser(argparse.ArgumentParser):
         raise UserError(f"{self.prog}: {message} (see --help)")
 
 
+class _Choices(list):
+    """Choices argparse accepts (``in``) beyond those it lists (iteration: help, usage, errors), for
+    internal commands such as ``bench speed-worker`` (one benchmark process of ``bench report``)."""
+
+    def __init__(self, shown, hidden):
+        super().__init__(shown)
+        self.hidden = set(hidden)
+
+    def __contains__(self, item):
+        return item in self.hidden or super().__contains__(item)
+
+
 # -- output files --------------------------------------------------------------------------
 def check_output_path(path: str | None, flag: str, suffixes=None) -> Path | None:
-    """Fail early (before any simulation) if ``path`` cannot be written. Creates missing parents."""
+    """Fail early (before any simulation) if ``path`` cannot be written (a missing parent folder is
+    created only inside the project's default ``out/``). Removes, and names on stderr, temporaries
+    that killed runs left beside it."""
     if path is None:
         return None
     p = Path(path)
@@ -46,6 +62,7 @@ def check_output_path(path: str | None, flag: str, suffixes=None) -> Path | None
     _check_parent(p, flag, path)
     if p.exists() and not os.access(p, os.W_OK):
         raise UserError(f"{flag} {path}: file exists and is not writable")
+    _note_removed(remove_stale_temps(p))
     return p
 
 
@@ -59,15 +76,27 @@ def check_output_dir(path: str | None, flag: str) -> Path | None:
     _check_parent(p, flag, path)
     if p.exists() and not os.access(p, os.W_OK):
         raise UserError(f"{flag} {path}: directory is not writable")
+    _note_removed(remove_stale_temps(p, inside=True))
     return p
+
+
+def _note_removed(lines: list[str]):
+    for line in lines:
+        print(f"note: {line}", file=sys.stderr)
 
 
 def _check_parent(p: Path, flag: str, path: str):
     parent = p.parent if str(p.parent) else Path(".")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"{flag} {path}: cannot create directory {parent}: {e.strerror}") from None
+    if not parent.is_dir():
+        if parent.exists():
+            raise UserError(f"{flag} {path}: {parent} is not a directory")
+        if not _in_default_out(parent):
+            raise UserError(f"{flag} {path}: directory {parent} does not exist (create it first; only the "
+                            f"default {DEFAULT_OUT}/ is created for you)")
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise UserError(f"{flag} {path}: cannot create directory {parent}: {e.strerror}") from None
     if not os.access(parent, os.W_OK):
         raise UserError(f"{flag} {path}: directory {parent} is not writable")
     try:
@@ -75,6 +104,14 @@ def _check_parent(p: Path, flag: str, path: str):
     except (OSError, OutputError) as e:
         reason = e.strerror if isinstance(e, OSError) else str(e)
         raise UserError(f"{flag} {path}: cannot create files in {parent}: {reason}") from None
+
+
+def _in_default_out(folder: Path) -> bool:
+    """Whether ``folder`` is the project's default output folder ``out/`` (of the current directory)
+    or inside it: the one place outputs may create folders."""
+    out = (Path.cwd() / DEFAULT_OUT).resolve()
+    target = folder.resolve()
+    return target == out or out in target.parents
 
 
 def finite_or_none(obj):
@@ -115,7 +152,9 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
     """Flags for offscreen rendering (docs/rendering.md)."""
     from .render.export import MESH_FORMATS
 
-    g = p.add_argument_group("rendering (offscreen GGUI; needs a Vulkan device, Mesa's lavapipe will do)")
+    from .render.choose import RENDERERS
+
+    g = p.add_argument_group("rendering (offscreen: GGUI on a Vulkan GPU, else Taichi kernels on the CPU)")
     g.add_argument("--video", metavar="PATH", help="write a video: .mp4 (H.264, yuv420p) or .gif")
     g.add_argument("--frames", metavar="DIR", help="write numbered PNGs DIR/frame_00000.png ...")
     g.add_argument("--fps", type=_float_arg("--fps"), help="output frames per simulated second (default: the scene's render.fps)")
@@ -127,16 +166,27 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
     g.add_argument("--follow", action=argparse.BooleanOptionalAction, default=None,
                    help="camera tracks the bodies' centre of mass (default: on tilted_plane and sphere, where they travel far)")
     g.add_argument("--no-overlay", dest="overlay", action="store_false", help="leave the text overlay out of frames")
+    g.add_argument("--renderer", choices=RENDERERS, default="auto",
+                   help="ggui: GGUI through Vulkan; taichi: Taichi kernels, no Vulkan needed, surfaces only; "
+                        "auto (default): ggui on a Vulkan GPU or for --particles/--springs, else taichi")
     if mesh_export:
         g.add_argument("--export-mesh", metavar="DIR",
                        help="write each frame's surface mesh to DIR/mesh_00000.<fmt>, all bodies merged in one "
                             "file per frame (PLY: a 'body' index per vertex; OBJ: one object per body); "
                             "needs no Vulkan")
         g.add_argument("--mesh-format", choices=MESH_FORMATS, default="ply", help="mesh file format (default: ply)")
+        g.add_argument("--export-usd", metavar="PATH",
+                       help="write one USD stage (.usd, .usda or .usdc): each body a mesh with its points sampled "
+                            "once per frame, the terrain static, Y up, metres (Blender, Houdini: docs/rendering.md); "
+                            "needs no Vulkan")
+        g.add_argument("--export-pc2", metavar="DIR",
+                       help="write DIR/body_<b>.pc2 (Point Cache 2, one sample per frame) and the rest-pose "
+                            "DIR/body_<b>.obj per body, for Blender's Mesh Cache modifier; needs no Vulkan")
 
 
 def render_options_from_args(args, scene):
     """Validated ``RenderOptions``: output paths checked (and parents created) before any simulation."""
+    from .render.choose import choose_renderer
     from .render.outputs import VIDEO_SUFFIXES, check_video_size
     from .render.recorder import RenderOptions
 
@@ -144,11 +194,21 @@ def render_options_from_args(args, scene):
     width, height = render["resolution"]
     video = check_output_path(args.video, "--video", VIDEO_SUFFIXES)
     check_video_size(video, width, height)
+    if video or args.frames:  # a bad combination: exit 2 now, before any simulation
+        choose_renderer(args.renderer, args.particles or args.springs)
+    usd = getattr(args, "export_usd", None)
+    if usd is not None:
+        from .render.caches import USD_SUFFIXES, require_usd
+
+        usd = check_output_path(usd, "--export-usd", USD_SUFFIXES)
+        require_usd()
     return RenderOptions(
         video=video, frames=check_output_dir(args.frames, "--frames"),
         mesh_dir=check_output_dir(getattr(args, "export_mesh", None), "--export-mesh"),
+        usd=usd, pc2_dir=check_output_dir(getattr(args, "export_pc2", None), "--export-pc2"),
         mesh_format=getattr(args, "mesh_format", "ply"), fps=render["fps"], resolution=(width, height),
-        surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay)
+        surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay,
+        renderer=args.renderer)
 
 
 def _resolution_arg(text):
@@ -209,22 +269,30 @@ def cmd_run(args) -> int:
     import numpy as np
 
     from .progress import CountBar
-    from .simulation import Simulation, states_arrays, step_count
+    from .simulation import Simulation, body_lines, states_arrays, step_count
 
     scene = load_scene_from_args(args)
-    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None)
+    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None,
+               fast_math=args.fast_math)
+    if args.dry_run:
+        from .dry_run import describe
+
+        outputs = {"--summary": args.summary, "--states": args.states, "--video": args.video, "--frames": args.frames,
+                   "--export-mesh": args.export_mesh, "--export-usd": args.export_usd, "--export-pc2": args.export_pc2}
+        for line in describe(scene, args.precision, args.arch, outputs, scene.data["render"]["fps"], args.fast_math):
+            print(line)
+        return EXIT_OK
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
     render_options = render_options_from_args(args, scene)
     start_taichi(args)
     sim = Simulation(scene)
+    for line in body_lines(sim.model):
+        print(line)
     duration = scene.sim["duration"]
     fps = scene.data["render"]["fps"]
     label = f"{scene.label}/{sim.integrator_name}"
     _note_whole_steps(duration, sim.dt)
-    precision_note = sim.integrator.precision_note(sim.dt)
-    if precision_note:
-        print(f"note: {precision_note}", file=sys.stderr)
     recorder, step_progress = None, None
     if render_options.any:
         from .render.recorder import FrameRecorder, frame_count
@@ -256,7 +324,7 @@ def cmd_run(args) -> int:
     if recorder is not None:
         try:
             recorder.finish()
-            written += list(zip(("video", "frames", "meshes"), _render_paths(render_options)))
+            written += list(zip(("video", "frames", "meshes", "usd", "pc2"), _render_paths(render_options)))
         except OutputError as e:
             failures.append(str(e))
     summary = sim.summary(result)
@@ -279,10 +347,16 @@ def cmd_run(args) -> int:
     _print_outputs(written)
     for line in failures:
         print(f"error: {line}", file=sys.stderr)
+    for line in summary["solver_warnings"]:
+        print(f"warning: {label}: {line}", file=sys.stderr)
     if result.diverged:
         print(f"diverged at t = {result.diverged_at:.4f} s (step {result.diverged_step}) with {sim.integrator_name} "
-              f"at dt = {sim.dt:g} s; try --dt {sim.suggest_dt():g} or a more stable integrator", file=sys.stderr)
+              f"at dt = {sim.dt:g} s; {sim.divergence_hint()[1]}", file=sys.stderr)
         return EXIT_DIVERGED
+    if summary["meaningless"]:
+        print(f"error: {label}: the solver's fallbacks decided most steps, so this result is meaningless; "
+              "try a smaller --dt or --precision f64", file=sys.stderr)
+        return EXIT_UNRELIABLE
     return EXIT_OUTPUT if failures else EXIT_OK
 
 
@@ -307,7 +381,7 @@ def _write_output(label: str, path: Path, write, written: list) -> list[str]:
 
 
 def _render_paths(options) -> list:
-    return [options.video, options.frames, options.mesh_dir]
+    return [options.video, options.frames, options.mesh_dir, options.usd, options.pc2_dir]
 
 
 def _print_outputs(labelled):
@@ -341,9 +415,9 @@ def cmd_compare(args) -> int:
 
     integrators = parse_integrator_list(args.integrators)
     scene = load_scene_from_args(args)
-    check_fits(scene.data, integrators, args.precision, args.arch)
+    check_fits(scene.data, integrators, args.precision, args.arch, fast_math=args.fast_math)
     if args.video is None and args.frames is None:
-        args.video = f"out/compare-{scene.name}.mp4"
+        args.video = f"{DEFAULT_OUT}/compare-{scene.name}.mp4"
     render_options = render_options_from_args(args, scene)
     start_taichi(args)
     from .render.compare import Comparison
@@ -365,7 +439,7 @@ def cmd_compare(args) -> int:
         if r.diverged_at is not None:
             state = f"diverged at t = {r.diverged_at:.4f} s (step {r.diverged_step})"
         else:
-            state = f"ran to t = {r.final_time:.3f} s, final energy {r.final_energy:.6g} J"
+            state = f"ran to t = {r.final_time:.3f} s, energy change since t = 0 {r.final_energy:+.6g} J"
         print(f"{r.integrator:22s} dt = {comparison.dt:g} s: {state}")
     _print_outputs(zip(("video", "frames"), (render_options.video, render_options.frames)))
     return EXIT_OK
@@ -386,11 +460,25 @@ def cmd_bench(args) -> int:
                      kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
-    if args.study in ("speed", "memory") and (args.workers is not None or args.scheduler is not None):
+    if args.study in ("speed", "memory", "mesh") and (args.workers is not None or args.scheduler is not None):
         raise UserError(f"bench {args.study} runs one configuration at a time (its measurements need a quiet "
                         "machine); --workers/--scheduler apply to the accuracy and stability sweeps")
-    default = "out/benchmarks-quick" if args.quick else "docs/benchmarks"
+    default = f"{DEFAULT_OUT}/benchmarks-quick" if args.quick else "docs/benchmarks"
     out_dir = check_output_dir(args.out or default, "--out")
+    if args.study == "mesh":  # mesh-body goals: build time and frame cost (bench/meshbody.py)
+        from .bench import meshbody as mesh_bench
+
+        runtime.init("cpu", "f64")
+        result = mesh_bench.run(repeats=2 if args.quick else 5, frames=5 if args.quick else 20)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        b = result["build"]
+        print(f"build {mesh_bench.N}^3 body from {result['triangles']} triangles: {b['median_s']:.2f} s wall, "
+              f"{b['cpu_median_s']:.2f} s CPU (goal 2 s)")
+        for kind, f in result["frame"].items():
+            print(f"frame mesh/cube at 1280x720, {kind}: " + (f["error"] if "error" in f else
+                  f"{f['mesh_ms']:.1f} / {f['cube_ms']:.1f} ms = {f['ratio']:.2f}x (goal 1.5x)"))
+        print(f"wrote {mesh_bench.write_report(result, out_dir)}")
+        return EXIT_OK
     # Before any work: an unreachable --scheduler is refused here, in a few seconds.
     executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -439,13 +527,12 @@ def cmd_bench(args) -> int:
 
 def cmd_gallery(args) -> int:
     """``gallery``: every terrain x integrator video, a compare mosaic per terrain, index.html."""
-    from .bench.report import TERRAINS
-    from .gallery import PAGE, Plan, check_plan, run_gallery
+    from .gallery import DEFAULT_SCENES, PAGE, Plan, check_plan, run_gallery
     from .render.outputs import check_video_size
     from .scene import scene_names
     from .tasks import make_executor, report_failures
 
-    terrains = parse_name_list(args.terrains or ",".join(TERRAINS), "--terrains", scene_names(), "scene",
+    terrains = parse_name_list(args.terrains or ",".join(DEFAULT_SCENES), "--terrains", scene_names(), "scene",
                                "give distinct scene names separated by commas")
     from .integrators import names
 
@@ -488,14 +575,48 @@ def add_task_args(p: argparse.ArgumentParser):
 
 def cmd_demo(args) -> int:
     """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
+    if args.replay is not None:
+        return cmd_demo_replay(args)
+    if args.video is not None:
+        raise UserError("--video goes with --replay (the live window records with V)")
     scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
-    check_fits(scene.data, None, args.precision, args.arch)
+    check_fits(scene.data, None, args.precision, args.arch, fast_math=args.fast_math)
     screenshot = check_output_path(args.screenshot, "--screenshot", [".png"])
+    record = check_output_path(args.record, "--record", [".json"])
     start_taichi(args)
     from .demo.app import run_demo
 
     run_demo(args.scene, args.set, args.integrator, args.dt, tuple(scene.data["render"]["resolution"]),
-             frames=args.frames, screenshot=screenshot, paused=args.paused)
+             frames=args.frames, screenshot=screenshot, paused=args.paused, duration=args.duration,
+             record=record)
+    return EXIT_OK
+
+
+def cmd_demo_replay(args) -> int:
+    """demo --replay: a recorded session played back without a display into a video."""
+    from . import runtime
+    from .demo.capture import default_path
+    from .demo.session import load_session, replay
+
+    if args.record is not None:
+        raise UserError("--record and --replay exclude each other")
+    data = load_session(args.replay)  # a bad file fails here, before Taichi starts
+    video = check_output_path(args.video, "--video", [".mp4", ".gif"])
+    setup = data["setup"]
+    runtime.init(setup.get("arch", "cpu"), setup.get("precision", "f64"), fast_math=setup.get("fast_math", False))
+    if video is None:
+        video = default_path("replay", Path(str(setup["scene"])).stem, ".mp4")
+    result = replay(data, video)
+    deviation = result["max_deviation_m"]
+    print(f"replay: {result['frames']} frames, {result['steps']} steps to t = {result['time']:.4f} s; video {result['video']}")
+    if deviation is None:
+        print("replay: the session holds no final state to compare with")
+    elif deviation > 0:
+        print(f"replay: the final state differs from the recorded session's by up to {deviation:.3g} m",
+              file=sys.stderr)
+        return EXIT_REPLAY_DIFFERS
+    else:
+        print("replay: final state identical to the recorded session's")
     return EXIT_OK
 
 
@@ -506,6 +627,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_args(p_run)
     p_run.add_argument("--summary", help="write a JSON run summary here")
     p_run.add_argument("--states", help="write sampled states (t, x, v) to this .npz")
+    p_run.add_argument("--dry-run", action="store_true",
+                       help="print what would be simulated and written and the memory estimate, then exit")
     add_render_args(p_run)
     p_run.set_defaults(func=cmd_run)
     p_cmp = sub.add_parser("compare", help="run one scene with several integrators at the same dt; write a mosaic video")
@@ -516,16 +639,28 @@ def build_parser() -> argparse.ArgumentParser:
     p_cmp.set_defaults(func=cmd_compare)
     p_demo = sub.add_parser("demo", help="open the interactive classroom window (needs a display and Vulkan)")
     add_scene_args(p_demo)
+    next(a for a in p_demo._actions if a.dest == "duration").help = \
+        "stop the simulation at this simulated time [s] (R restarts; default: run on)"
     p_demo.add_argument("--resolution", type=_resolution_arg, metavar="WxH", default=[1280, 800],
                         help="window size in pixels (default: 1280x800)")
     p_demo.add_argument("--paused", action="store_true", help="start paused: Space plays (R also resets paused)")
-    # Hidden, for tests and docs: render N frames, save the window to PATH, exit.
-    p_demo.add_argument("--frames", type=int, help=argparse.SUPPRESS)
-    p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
+    p_demo.add_argument("--record", metavar="SESSION.json",
+                        help="save every input (keys, buttons, sliders, mouse grabs, pokes, pins) with its time to "
+                             "this file when the window closes, for --replay")
+    p_demo.add_argument("--replay", metavar="SESSION.json",
+                        help="play a recorded session back without a window into a video (its scene, settings, "
+                             "backend and precision come from the file; exit 7 if it ends elsewhere than the "
+                             "live session did)")
+    p_demo.add_argument("--video", metavar="PATH",
+                        help="with --replay: the video to write, .mp4 or .gif (default: out/demo-<scene>-replay-<date>.mp4)")
+    p_demo.add_argument("--frames", type=int, metavar="N", help="draw N frames, then close the window (for scripts)")
+    p_demo.add_argument("--screenshot", metavar="PATH.png", help="with --frames: save the last frame to this PNG")
     p_demo.set_defaults(func=cmd_demo)
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=["accuracy", "stability", "speed", "memory", "report", "speed-worker"],
-                         help="what to measure; report runs all four and writes REPORT.md")
+    p_bench.add_argument("study", choices=_Choices(["accuracy", "stability", "speed", "memory", "report", "mesh"],
+                                                   hidden=["speed-worker"]),
+                         help="what to measure; report runs the first four and writes REPORT.md; mesh: the mesh-body "
+                              "goals (build time, frame cost), MESH.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     add_task_args(p_bench)
@@ -535,7 +670,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_bench.set_defaults(func=cmd_bench)
     p_gal = sub.add_parser("gallery", help="every terrain x integrator video, a compare mosaic per terrain, "
                                               "and an index.html that shows them all")
-    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl)")
+    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl,torus,three_cubes,pile)")
     p_gal.add_argument("--integrators", metavar="A,B", help="comma-separated integrator names (default: all registered)")
     p_gal.add_argument("--duration", type=_float_arg("--duration"), help="simulated time [s] (default: each scene's)")
     p_gal.add_argument("--dt", type=_float_arg("--dt"),
@@ -543,7 +678,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_gal.add_argument("--resolution", type=_resolution_arg, metavar="WxH",
                        help="size of each run's video (default 640x360; the compare mosaics are twice as wide and high)")
     p_gal.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override for every run (repeatable)")
-    p_gal.add_argument("--out", default="out/gallery", help="output folder (default: out/gallery)")
+    p_gal.add_argument("--out", default=f"{DEFAULT_OUT}/gallery", help=f"output folder (default: {DEFAULT_OUT}/gallery)")
     add_task_args(p_gal)
     p_gal.set_defaults(func=cmd_gallery)
     p_list = sub.add_parser("list", help="list scenes, integrators and backends")
@@ -593,4 +728,4 @@ def _catch_termination() -> dict:
 def main_job() -> int:
     """``python main.py`` with no arguments: renders the default scene to out/<scene>-<integrator>.mp4."""
     return main(["run", "--scene", DEFAULT_SCENE, "--integrator", DEFAULT_INTEGRATOR,
-                 "--video", f"out/{DEFAULT_SCENE}-{DEFAULT_INTEGRATOR}.mp4"])
+                 "--video", f"{DEFAULT_OUT}/{DEFAULT_SCENE}-{DEFAULT_INTEGRATOR}.mp4"])

@@ -3,22 +3,38 @@
 Spring on particle a (seed):  f_a = -ks (|x_a - x_b| - r) l,  l = (x_a - x_b) / |x_a - x_b|
 Damper on particle a (seed):  f_a = -kd ((v_a - v_b) . l) l
 
-``spring_pair_force`` is the one formula; ``ForceEvaluator`` evaluates it two ways:
+``spring_force`` is the one formula; ``ForceEvaluator`` evaluates it two ways:
 
 * ``compute(x, v, dt, a)``: the general reference pass, a[i] for every particle, reading each
   spring's stiffness through its group (``model.group_k``). Tests and tools use it.
 * the step kernels' pieces (``spring_pass`` + ``accel``): the same forces with each spring's
-  (k, kd) copied next to it (per adjacency entry, or per spring), so the inner loop has no group
-  indirection, and no acceleration buffer: an integrator turns ``accel(x, v, i, dt)`` into the
-  new state of particle i in the same loop. The copies are refreshed from ``model.group_k`` /
-  ``group_kd`` by ``refresh()`` (called before every ``advance``) when those fields changed, so a
-  stiffness changed at run time (the demo's sliders, the stability sweep) acts on the next step.
+  (k, kd) copied next to it (per spring, or per slot of the gather's padded rows, rows.py), so the
+  inner loop has no group indirection, and no acceleration buffer: an integrator turns
+  ``accel(x, v, i, dt)`` into the new state of particle i in the same loop. The copies are
+  refreshed from ``model.group_k`` / ``group_kd`` by ``refresh()`` (at the top of every step
+  kernel) when those fields changed, so a stiffness changed at run time (the demo's sliders, the
+  stability sweep) acts on the next step.
 """
 
-import numpy as np
 import taichi as ti
 
 from .model import end_b_spring
+from .rows import SpringRows
+
+# Added to a spring's length before dividing by it: a zero-length spring then has direction 0
+# (and no force) instead of NaN, with no branch in the spring loop (a branch there keeps LLVM
+# from vectorising the gather loop: docs/benchmarks/README.md, "Speed (issue 25)").
+# Below every real length's rounding (f32: lengths above ~1e-22 m are unchanged), and its
+# inverse is finite in f32, so fast math's no-inf assumption holds.
+TINY = 1e-30
+
+
+@ti.func
+def spring_force(d, dv, length, rest, k, kd):
+    """Spring + damper force [N] on end a of a spring, from d = x_a - x_b [m] (``length`` = |d|)
+    and dv = v_a - v_b [m/s]; ``k`` [N/m], ``kd`` [N s/m], ``rest`` [m]. Zero length: no force."""
+    l = d * (1.0 / (length + TINY))
+    return -(k * (length - rest) + kd * dv.dot(l)) * l
 
 
 @ti.func
@@ -27,14 +43,8 @@ def spring_pair_force(x: ti.template(), v: ti.template(), a, b, rest, k, kd):
 
     ``k`` [N/m] stiffness, ``kd`` [N s/m] damper coefficient, ``rest`` [m] rest length.
     """
-    f = ti.Vector.zero(float, 3)
     d = x[a] - x[b]
-    length = d.norm()
-    # A zero-length spring has no direction: it contributes no force rather than NaN.
-    if length > 0:
-        l = d * (1.0 / length)
-        f = -(k * (length - rest) + kd * (v[a] - v[b]).dot(l)) * l
-    return f
+    return spring_force(d, v[a] - v[b], d.norm(), rest, k, kd)
 
 
 @ti.func
@@ -48,6 +58,21 @@ def gather_spring_force(model: ti.template(), x: ti.template(), v: ti.template()
 
 
 STRATEGIES = ("scatter", "per_spring", "gather")
+
+
+def auto_strategy(arch: str, fast_math: bool) -> str:
+    """The force strategy ``forces = "auto"`` picks on backend ``arch`` ("cpu", "cuda", ...).
+
+    GPU: gather (the scatter's slab passes would run one slab per thread). CPU with fast math:
+    gather, whose padded rows LLVM vectorises (fast math lets it reorder each particle's sum):
+    1.5x the scatter at one thread, n = 10 and n = 40, f32 and f64, every explicit method
+    (docs/benchmarks/README.md, issue 25). CPU without fast math: nothing is vectorised and the
+    scatter, which evaluates each spring once instead of twice, is 1.3x the gather.
+    """
+    if arch != "cpu":
+        return "gather"
+    return "gather" if fast_math else "scatter"
+
 # Iterations between two slabs of the parallel scatter's loop: at least the largest task Taichi
 # 1.7's CPU backend makes (1024, ``cpu_block_dim_adaptive``), so no task holds two slabs' work.
 SLAB_STRIDE = 1024
@@ -65,13 +90,13 @@ class ForceEvaluator:
       Serial launches run the springs in one loop. Parallel launches run the slabs of
       ``slabs.py`` (ranges of the model's own spring ids; no copy of the springs): the even
       slabs in parallel, then the odd ones, so no two threads ever add to the same particle.
-      The fastest on the CPU (docs/benchmarks), the default of both launch modes; the only
-      strategy that needs no adjacency (``model.ensure_adjacency``).
+      The fastest on the CPU without fast math (``auto_strategy``); needs no adjacency.
     * ``per_spring``: one pass over springs stores each spring's force once, then each particle
       sums its springs' forces (signed by which end it is).
-    * ``gather``: each particle evaluates all of its springs itself (every spring twice). One
+    * ``gather``: each particle evaluates all of its springs itself (every spring twice), over
+      its padded row (rows.py: constant trip count, no branch, so LLVM vectorises it). One
       loop, no shared buffer and no atomics. A step built on it must read the old state and
-      write the new one to other buffers (ping-pong).
+      write the new one to other buffers (ping-pong). The fastest with fast math and on GPUs.
 
     ``parallel``: the step runs in parallel launches (scatter then uses its slab passes).
     ``fused=False`` (reference evaluators in tests and tools) allocates nothing for the step
@@ -87,15 +112,21 @@ class ForceEvaluator:
         self.terrain = terrain
         self.strategy = strategy
         self.parallel = parallel
-        if not (fused and strategy == "scatter"):
-            model.ensure_adjacency()  # gathered sums, and compute(), walk each particle's springs
+        self.rows = None
+        if fused and strategy == "gather":
+            self.rows = SpringRows(model)  # padded rows (rows.py); compute() walks them too
+        elif not (fused and strategy == "scatter"):
+            model.ensure_adjacency()  # per_spring sums, and compute(), walk each particle's springs
         m = max(model.n_springs, 1)
         self.spring_f = ti.Vector.field(3, float, m) if strategy == "per_spring" else None
-        # (k [N/m], kd [N s/m]) of each spring (per_spring, scatter) or adjacency entry (gather).
+        # (k [N/m], kd [N s/m]) of each spring (per_spring, scatter); gather: ``rows.kkd`` per slot.
         self.kkd = None
-        if fused:
-            self.kkd = ti.Vector.field(2, float, 2 * m if strategy == "gather" else m)
-        self._seen = None  # group_k, group_kd as last copied into kkd
+        if fused and strategy != "gather":
+            self.kkd = ti.Vector.field(2, float, m)
+        # refresh(): group_k, group_kd as last copied; whether a copy was made; whether one is due
+        self._seen = ti.Vector.field(2, float, max(model.n_groups, 1))
+        self._copied = ti.field(ti.i32, ())
+        self._changed = ti.field(ti.i32, ())
         if strategy == "scatter":
             self.f = ti.Vector.field(3, float, model.n_particles)  # per-particle force sums [N], kept at 0 between passes
             first, ranges = model.slab_ranges()  # the model's own springs, split into slabs (slabs.py)
@@ -106,28 +137,41 @@ class ForceEvaluator:
             if len(ranges):
                 self.slab_range.from_numpy(ranges)
 
-    # -- parameter copies ----------------------------------------------------------------------
-    def refresh(self):
-        """Copy the groups' stiffness and damping into ``kkd`` if they changed since the last copy."""
-        if self.kkd is None or self.model.n_springs == 0:
-            return
-        seen = (self.model.group_k.to_numpy(), self.model.group_kd.to_numpy())
-        if self._seen is not None and all(np.array_equal(s, t) for s, t in zip(seen, self._seen)):
-            return
-        self._fill_kkd()
-        self._seen = seen
+    def _has_rows(self) -> bool:
+        return self.rows is not None
 
-    @ti.kernel
-    def _fill_kkd(self):
+    # -- parameter copies ----------------------------------------------------------------------
+    @ti.func
+    def refresh(self):
+        """Copy the groups' stiffness and damping into the per-spring (or per-slot) copies if they
+        changed since the last copy (also when written straight into the fields).
+
+        Called at the top level of every step kernel, before its steps: a serial comparison of the
+        few groups, then a copy loop of zero iterations unless something changed. It used to run
+        from Python before each ``advance`` (downloading both fields: two parallel launches, most
+        of the ``run`` path's per-frame cost at n = 10; docs/benchmarks/README.md, issue 25).
+        """
         m = self.model
-        if ti.static(self.strategy in ("per_spring", "scatter")):
-            for s in range(m.n_springs):
+        ti.loop_config(serialize=True)
+        for g in range(m.n_groups):
+            kkd = ti.Vector([m.group_k[g], m.group_kd[g]])
+            if kkd[0] != self._seen[g][0] or kkd[1] != self._seen[g][1] or self._copied[None] == 0:
+                self._changed[None] = 1
+                self._seen[g] = kkd
+        self._copied[None] = 1
+        # Serial launches stay serial: even an empty parallel loop wakes the thread pool.
+        if ti.static(self._has_rows()):
+            rows = self.rows
+            ti.loop_config(serialize=not self.parallel)
+            for e in range(self._changed[None] * m.n_particles * rows.width):
+                g = rows.group[e]
+                rows.kkd[e] = ti.Vector([m.group_k[g], m.group_kd[g]])  # padding: zero force anyway
+        else:
+            ti.loop_config(serialize=not self.parallel)
+            for s in range(self._changed[None] * m.n_springs):
                 g = m.spring_group[s]
                 self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])
-        else:
-            for e in range(2 * m.n_springs):
-                g = m.adj_group[e]
-                self.kkd[e] = ti.Vector([m.group_k[g], m.group_kd[g]])
+        self._changed[None] = 0
 
     # -- step-kernel pieces ---------------------------------------------------------------------
     @ti.func
@@ -181,17 +225,40 @@ class ForceEvaluator:
             f = self.f[i]
             self.f[i] = ti.Vector.zero(float, 3)  # ready for the next pass
         else:
-            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
-                kkd = self.kkd[e]
-                f += spring_pair_force(x, v, i, m.adj_other[e], m.adj_rest[e], kkd[0], kkd[1])
+            f = self._row_force(x, v, i, False)
         return self.particle_accel(x, v, i, f, dt)
+
+    @ti.func
+    def _row_force(self, x: ti.template(), v: ti.template(), i, lookup: ti.template()):
+        """gather: spring force sum [N] on particle i over its padded row (rows.py); (k, kd) from
+        the slot's copy, or with ``lookup`` from its group. No branch in the loop and a constant
+        trip count: LLVM vectorises it (with fast math, which lets it reorder the sum)."""
+        rows = self.rows
+        w = ti.static(rows.width)
+        xi, vi = x[i], v[i]
+        f = ti.Vector.zero(float, 3)
+        for k in range(w):
+            e = i * w + k
+            j = rows.other[e]
+            d = xi - x[j]
+            kkd = ti.Vector.zero(float, 2)
+            if ti.static(lookup):
+                kkd = ti.Vector([self.model.group_k[rows.group[e]], self.model.group_kd[rows.group[e]]])
+            else:
+                kkd = rows.kkd[e]
+            f += spring_force(d, vi - v[j], d.norm(), rows.rest[e], kkd[0], kkd[1])
+        return f
 
     # -- shared ------------------------------------------------------------------------------------
     @ti.func
     def particle_accel(self, x: ti.template(), v: ti.template(), i, f_springs, dt):
-        """Acceleration of particle i given its spring force sum; adds gravity and contact."""
+        """Acceleration of particle i given its spring force sum; adds gravity, the grab (if the
+        model has one, ``grab.py``) and contact."""
         m = self.model
-        a = m.gravity[None] * ti.cast(m.inv_mass[i] > 0, float) + f_springs * m.inv_mass[i]
+        f = f_springs
+        if ti.static(m.has_grab()):
+            f += m.grab.force(i, x[i], v[i])
+        a = m.gravity[None] * ti.cast(m.inv_mass[i] > 0, float) + f * m.inv_mass[i]
         if ti.static(self.terrain.has_contact):
             a = self.terrain.contact_accel(i, x[i], v[i], a, dt)
         return a
@@ -213,6 +280,9 @@ class ForceEvaluator:
                 self.spring_f[s] = spring_pair_force(x, v, ends[0], ends[1], m.spring_rest[s], m.group_k[g], m.group_kd[g])
             for i in range(m.n_particles):
                 a[i] = self.accel(x, v, i, dt)  # sums the stored spring forces
+        elif ti.static(self._has_rows()):
+            for i in range(m.n_particles):
+                a[i] = self.particle_accel(x, v, i, self._row_force(x, v, i, True), dt)
         else:
             for i in range(m.n_particles):
                 a[i] = self.particle_accel(x, v, i, gather_spring_force(m, x, v, i), dt)

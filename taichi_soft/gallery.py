@@ -23,6 +23,10 @@ from .tasks import Task, run_tasks
 # docs/benchmarks/stability_terrain.csv); implicit ones one step per 1/60 s, the step
 # docs/implicit.md tests them at (stable there to 0.1 s on every terrain).
 IMPLICIT_DT = 1.0 / 60.0
+# The scenes a plain `gallery` renders: the cube on each terrain, a mesh body (the torus), and the
+# scenes of several bodies (body-body contact with every integrator: three cubes on the plane, a
+# pile of five in the bowl).
+DEFAULT_SCENES = ("plane", "tilted_plane", "sphere", "bowl", "torus", "three_cubes", "pile")
 DEFAULT_RESOLUTION = (640, 360)  # [px] of each single-run video; the mosaics are twice as wide and high
 PAGE = "index.html"
 MIN_ENERGY_SPAN = 1e-3  # smallest energy-axis range of the caption plots, relative to |E|
@@ -193,10 +197,11 @@ def run_gallery(plan: Plan, executor, scene_dts: dict):
 
 
 def energy_svg(samples, diverged_at=None, width: int = 220, height: int = 56) -> str:
-    """A small inline SVG line of total energy [J] against time [s], with its range written on it."""
+    """A small inline SVG line of total energy [J] against time [s], with its range written on it;
+    ``width`` x ``height`` is its drawing's aspect (the page scales it to the card's width)."""
     pts = [(t, e) for t, e in samples if e is not None and math.isfinite(e)]
     if len(pts) < 2:
-        return '<svg class="energy" width="%d" height="%d" role="img" aria-label="no energy samples"></svg>' % (width, height)
+        return f'<svg class="energy" viewBox="0 0 {width} {height}" role="img" aria-label="no energy samples"></svg>'
     t0, t1 = pts[0][0], pts[-1][0]
     e_min, e_max = lo, hi = min(e for _, e in pts), max(e for _, e in pts)
     # The axis spans at least MIN_ENERGY_SPAN of the energy's size, so round-off wiggles of a
@@ -216,7 +221,7 @@ def energy_svg(samples, diverged_at=None, width: int = 220, height: int = 56) ->
     if diverged_at is not None and span_t:
         x = width * min(max((diverged_at - t0) / span_t, 0.0), 1.0)
         mark = f'<line x1="{x:.1f}" y1="0" x2="{x:.1f}" y2="{height}" class="div"/>'
-    return (f'<svg class="energy" width="{width}" height="{height}" viewBox="0 0 {width} {height}" role="img" '
+    return (f'<svg class="energy" viewBox="0 0 {width} {height}" role="img" '
             f'aria-label="total energy from {e_min:.6g} to {e_max:.6g} J over {t0:g}..{t1:g} s">'
             f'<polyline points="{line}"/>{mark}'
             f'<text x="2" y="10">E max {e_max:.6g} J</text><text x="2" y="{height - 2}">min {e_min:.6g} J, '
@@ -240,7 +245,7 @@ def _caption(cell: dict) -> str:
         lines = [f"all integrators at dt = {res['dt']:g} s, {res['frames']} frames"]
         for t in res["tiles"]:
             state = (f'<span class="bad">diverged at t = {t["diverged_at"]:.4f} s</span>' if t["diverged_at"] is not None
-                     else f"E = {t['final_energy']:.6g} J" if t["final_energy"] is not None else "E = -")
+                     else f"E - E(0) = {t['final_energy']:+.6g} J" if t["final_energy"] is not None else "E - E(0) = -")
             lines.append(f"{esc(t['integrator'])}: {state}")
         plot = ""
     return "<br>".join(lines) + plot
@@ -251,11 +256,12 @@ body { font: 13px/1.35 system-ui, sans-serif; margin: 16px; background: #f6f6f4;
 .grid { display: grid; gap: 10px; align-items: start; }
 .head { font-weight: 600; padding: 4px; }
 .row { font-weight: 600; writing-mode: vertical-rl; transform: rotate(180deg); align-self: center; }
-figure.cell { margin: 0; background: #fff; border: 1px solid #ddd; padding: 6px; }
+figure.cell { margin: 0; background: #fff; border: 1px solid #ddd; padding: 6px; overflow-wrap: anywhere; }
 figure.cell video { width: 100%; display: block; background: #000; }
 figcaption { margin-top: 4px; }
 .bad, .failed { color: #b00; font-weight: 600; }
-svg.energy { display: block; margin-top: 4px; background: #fafafa; border: 1px solid #eee; }
+svg.energy { display: block; box-sizing: border-box; width: 100%; height: auto; margin-top: 4px; background: #fafafa;
+              border: 1px solid #eee; }
 svg.energy polyline { fill: none; stroke: #1f5fa8; stroke-width: 1.5; }
 svg.energy line.div { stroke: #b00; stroke-dasharray: 3 2; }
 svg.energy text { font-size: 9px; fill: #666; }
@@ -285,7 +291,7 @@ def page_html(plan: Plan, cells: dict, wall_seconds: float) -> str:
              f"{plan.resolution[0]}x{plan.resolution[1]} px per run"
              f"{', --set ' + esc(' '.join(plan.sets)) if plan.sets else ''}; all tasks took {wall_seconds:.0f} s. "
              f'Data: <a href="gallery.json">gallery.json</a>.</p>',
-             f'<div class="grid" style="grid-template-columns: 2em repeat({len(cols)}, minmax(180px, 1fr));">',
+             f'<div class="grid" style="grid-template-columns: 2em repeat({len(cols)}, minmax(150px, 1fr));">',
              '<div></div>'] + [f'<div class="head">{esc(c)}</div>' for c in cols]
     for terrain in plan.terrains:
         parts.append(f'<div class="row">{esc(terrain)}</div>')

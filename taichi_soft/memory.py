@@ -74,9 +74,9 @@ class FieldCounts:
 
 
 # Field entries of the model, the state and each integrator together, per force-strategy family
-# (forces.py: "scatter", the CPU default in both launch modes, reads the model's own springs
-# through slab ranges and needs no adjacency; "gather", the GPU default, builds the adjacency and
-# keeps (k, kd) per adjacency entry). Implicit solvers build the adjacency and no force-pass
+# (forces.py: "scatter", the CPU default without fast math, reads the model's own springs
+# through slab ranges and needs no adjacency; "gather", the default with fast math and on GPUs,
+# keeps padded spring rows, ``rows_bytes``, and no adjacency). Implicit solvers build the adjacency and no force-pass
 # buffers, whatever the family. Measured from the fields the code allocates at two sizes in f32
 # and f64 (tests/test_memory.py checks the table against the allocation); the source files are
 # the truth. fast_mass_spring's Cholesky factor ("cholesky", _cholesky_values) and its L-BFGS
@@ -85,7 +85,7 @@ _MODEL = FieldCounts(2, 0, 1, 3)  # mass, inv_mass | rest, ends x2, group
 _ADJACENCY = FieldCounts(0, 2, 2, 6)  # adj_offset, adj_split | per spring end: rest, other, group, code
 _STATE = FieldCounts(6, 0, 0, 0)  # x, v
 _SCATTER = _MODEL + _STATE + FieldCounts(3, 0, 2, 0)  # force sums | (k, kd)
-_GATHER = _MODEL + _ADJACENCY + _STATE + FieldCounts(0, 0, 4, 0)  # (k, kd) per spring end
+_GATHER = _MODEL + _STATE  # + the padded rows (rows.py), counted by rows_bytes
 _PING_PONG = FieldCounts(6, 0, 0, 0)  # one-stage methods with gathered forces: second x, v
 _RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
 # Implicit solvers (no force-pass buffers), per particle: the objective's 7 vectors and friction
@@ -117,12 +117,42 @@ IMPLICIT = ("implicit_euler", "fast_mass_spring")
 HOST_PARTICLE_BYTES = 56  # model.x0_np, v0_np (float64 vec3) and mass_np (float64)
 
 
+def _mesh_lattice(body: dict):
+    """The (cached) ``meshbody.MeshLattice`` of a validated mesh body, None for a cube."""
+    if body.get("shape", "cube") != "mesh":
+        return None
+    from .meshbody import mesh_lattice
+
+    scale = body.get("scale")
+    return mesh_lattice(body["mesh"], int(body["n"]), size=None if scale else body["size"], scale=scale)
+
+
 def scene_counts(scene_data: dict) -> tuple[int, int]:
-    """(particles, springs) of a validated scene, from the body sizes alone."""
+    """(particles, springs) of a validated scene: from the body sizes for cubes, the filled
+    lattice (read once, cached) for mesh bodies."""
     from .lattice import spring_count  # imports Taichi: only once the CLI has set it up quietly
 
-    ns = [int(b["n"]) for b in scene_data["body"]]
-    return sum(n**3 for n in ns), sum(spring_count(n) for n in ns)
+    n_p = n_s = 0
+    for b in scene_data["body"]:
+        m = _mesh_lattice(b)
+        n = int(b["n"])
+        n_p += m.n_particles if m else n**3
+        n_s += m.n_springs if m else spring_count(n)
+    return n_p, n_s
+
+
+def _surface_host_bytes(scene_data: dict) -> int:
+    """Host bytes of the bodies' surfaces: a cube's 12 (n-1)^2 triangles as int64 triples; a mesh
+    body's triangles (int64) and vertices (float64) and each vertex's embedding (int32 index and
+    float64 weight per followed particle)."""
+    total = 0
+    for b in scene_data["body"]:
+        m = _mesh_lattice(b)
+        if m is None:
+            total += 12 * (int(b["n"]) - 1) ** 2 * 3 * 8
+        else:
+            total += m.triangles.nbytes + m.vertices.nbytes + m.embed_index.nbytes + m.embed_weight.nbytes
+    return total
 
 
 def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
@@ -135,6 +165,7 @@ def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
     solver = scene_data.get("solver", {}).get("global_solver", "auto")
     if solver == "pcg" or (solver == "auto" and arch != "cpu"):
         return 0
+    # A mesh body fills part of its n^3 cube, numbered in the same order: its envelope is smaller.
     nnz = sum(envelope_size(int(b["n"])) for b in scene_data["body"])
     return nnz if solver == "cholesky" or nnz <= CHOLESKY_AUTO_MAX else 0
 
@@ -163,11 +194,23 @@ def _envelope_transient(scene_data: dict, integrator: str, n_p: int, n_s: int, r
     return max(0, 16 * n_s + 16 * n_p - later)
 
 
-def force_family(scene_data: dict, arch: str) -> str:
-    """"scatter" or "gather": which force strategy (forces.py) a run's ``[solver] forces`` and
-    backend pick (``per_spring`` is counted as scatter, its close upper bound)."""
+def force_family(scene_data: dict, arch: str, fast_math: bool = True) -> str:
+    """"scatter" or "gather": which force strategy (forces.py) a run's ``[solver] forces``,
+    backend and fast-math setting pick (``per_spring`` is counted as scatter, its close upper bound)."""
+    from .forces import auto_strategy  # imports Taichi: only once the CLI has set it up quietly
+
     forces = scene_data.get("solver", {}).get("forces", "auto")
-    return "gather" if forces == "gather" or (forces == "auto" and arch != "cpu") else "scatter"
+    if forces == "auto":
+        forces = auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math)
+    return "gather" if forces == "gather" else "scatter"
+
+
+def rows_bytes(scene_data: dict, n_p: int, real: int) -> int:
+    """The gather strategy's padded spring rows (rows.py): width x (2 ints + 3 reals) per particle."""
+    from .rows import lattice_width
+
+    width = max(lattice_width(int(b["n"])) for b in scene_data["body"])
+    return n_p * width * (2 * 4 + 3 * real)
 
 
 def field_counts(integrator: str, family: str = "scatter", cholesky: bool = False) -> FieldCounts:
@@ -187,30 +230,37 @@ def resolve_arch(arch: str) -> str:
     return arch
 
 
-def estimate(scene_data: dict, integrator, precision: str, arch: str, record_states: bool = False) -> dict:
+def estimate(scene_data: dict, integrator, precision: str, arch: str, record_states: bool = False,
+             fast_math: bool = True) -> dict:
     """Peak memory [bytes] of a run: {"host", "device", "fields", "particles", "springs"}.
 
     ``integrator``: a name, a list of names (``compare`` runs one simulation per name in one
     process), or None for the scene's. ``device`` is 0 on the CPU backend (fields count as host).
     ``record_states``: ``run --states`` keeps every output frame's x and v, then stacks them.
+    ``fast_math``: the run's setting (the command line's default is on), which picks the force
+    strategy on the CPU.
     """
     names = [scene_data["sim"]["integrator"]] if integrator is None else (
         [integrator] if isinstance(integrator, str) else list(integrator))
     arch = resolve_arch(arch)
     real = 8 if precision == "f64" else 4
     n_p, n_s = scene_counts(scene_data)
-    family = force_family(scene_data, arch)
+    family = force_family(scene_data, arch, fast_math)
     fields = 0
     for name in names:
         nnz = _cholesky_values(scene_data, name, arch)
         fields += field_counts(name, family, nnz > 0).bytes(n_p, n_s, real) + nnz * real
+        if family == "gather" and name not in IMPLICIT:
+            fields += rows_bytes(scene_data, n_p, real)
         fields += _lbfgs_reals(scene_data, name) * n_p * real
         fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
-    if len(scene_data["body"]) > 1:  # body-body contact: one per simulation
+    if len(scene_data["body"]) > 1:  # body-body contact: one per simulation, and the implicit pair terms
+        from .integrators.implicit import pairs
+
         fields += len(names) * collision.field_bytes(n_p, real)
+        fields += sum(pairs.field_bytes(n_p, real) for name in names if name in IMPLICIT)
     base = max(BASE_BYTES.get(name, BASE_BYTES_OTHER) for name in names)
-    n_surface = sum(12 * (int(b["n"]) - 1) ** 2 for b in scene_data["body"])
-    host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + n_surface * 3 * 8)
+    host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + _surface_host_bytes(scene_data))
     if real == 4:
         host += n_p * 2 * 3 * real  # State.set converts the float64 x0_np, v0_np to f32 copies
     host += len(names) * n_p * 16  # simulation.check_start: signed distances and contact radii (float64)
@@ -227,9 +277,9 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     return {"host": host, "device": device, "fields": fields, "particles": n_p, "springs": n_s, "arch": arch}
 
 
-def estimate_bytes(scene_data: dict, integrator, precision: str, arch: str) -> int:
+def estimate_bytes(scene_data: dict, integrator, precision: str, arch: str, fast_math: bool = True) -> int:
     """Peak resident host bytes of a run, plus device bytes on GPU backends (see ``estimate``)."""
-    e = estimate(scene_data, integrator, precision, arch)
+    e = estimate(scene_data, integrator, precision, arch, fast_math=fast_math)
     return e["host"] + e["device"]
 
 
@@ -280,13 +330,14 @@ def _gb(b: int) -> str:
     return f"{b / 1e9:.2f} GB" if b < 10e9 else f"{b / 1e9:.1f} GB"
 
 
-def check_fits(scene_data: dict, integrator, precision: str, arch: str, record_states: bool = False):
+def check_fits(scene_data: dict, integrator, precision: str, arch: str, record_states: bool = False,
+               fast_math: bool = True):
     """Raise ``UserError`` (one line: the estimate and what is available) if the run cannot fit.
 
     Host memory is always checked (where /proc/meminfo tells it); device memory on GPU backends
     where ``available_bytes`` can tell it. Does not start Taichi.
     """
-    e = estimate(scene_data, integrator, precision, arch, record_states)
+    e = estimate(scene_data, integrator, precision, arch, record_states, fast_math)
     what = f"{e['particles']:,} particles, {e['springs']:,} springs, {precision}"
     checks = [("host", e["host"], _host_available_bytes())]
     if e["device"]:

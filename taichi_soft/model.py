@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from . import lattice, slabs
+from . import lattice, meshbody, slabs
 from .lattice import SPRING_KINDS
 
 N_KINDS = len(SPRING_KINDS)  # spring groups per body
@@ -80,10 +80,18 @@ def code_spring(code):
 
 @dataclass
 class BodySpec:
-    """One soft cube, as a scene describes it. Lengths in m, masses in kg, angles in degrees."""
+    """One soft body, as a scene describes it. Lengths in m, masses in kg, angles in degrees.
+
+    ``shape = "cube"``: an n^3 lattice of edge ``size``. ``shape = "mesh"``: the lattice clipped
+    to the closed triangle mesh in the file ``mesh`` (``meshbody``), n points along its longest
+    side, which is ``size`` long, or the mesh scaled by ``scale`` metres per unit when given.
+    """
 
     n: int = 10
     size: float = 4.0
+    shape: str = "cube"
+    mesh: str | None = None
+    scale: float | None = None
     particle_mass: float = 1.0
     center: tuple = (0.0, 9.0, 0.0)
     rotation_axis: tuple = (1.0, 0.0, 1.0)
@@ -100,12 +108,17 @@ class BodySpec:
 
 @dataclass
 class BodyInfo:
-    """Where a finalized body's particles, springs and surface live in the model's arrays."""
+    """Where a finalized body's particles, springs and surface live in the model's arrays.
+
+    A cube's ``surface`` is its lattice's boundary; a mesh body's is empty and ``mesh`` holds its
+    ``meshbody.MeshLattice`` (the input surface embedded in the lattice, local particle indices).
+    """
 
     particles: slice
     springs: slice
     surface: np.ndarray  # [n_tris, 3] global particle indices, outward winding
     spec: BodySpec
+    mesh: object = None
 
 
 class ModelBuilder:
@@ -116,22 +129,25 @@ class ModelBuilder:
         self.specs: list[BodySpec] = []
 
     def add_cube(self, spec: BodySpec) -> int:
-        """Add a soft cube; returns its body index."""
+        """Add a soft body (a cube, or a mesh body when ``spec.shape == "mesh"``); returns its index."""
         self.specs.append(spec)
         return len(self.specs) - 1
 
     def finalize(self) -> "Model":
         """The device ``Model``. Host memory: x0, v0 and masses (56 bytes per particle) kept,
-        one body's lattice (24 bytes per particle) as a temporary; springs are made on the device."""
-        n_particles = sum(spec.n ** 3 for spec in self.specs)
+        one body's lattice (24 bytes per particle) as a temporary; a cube's springs are made on
+        the device, a mesh body's uploaded from its (cached) ``MeshLattice``."""
+        meshes = [meshbody.spec_lattice(spec, f"body.{b}.mesh") if spec.shape == "mesh" else None
+                  for b, spec in enumerate(self.specs)]
+        n_particles = sum(m.n_particles if m else spec.n ** 3 for spec, m in zip(self.specs, meshes))
         x0 = np.empty((n_particles, 3))
         v0 = np.empty((n_particles, 3))
         mass = np.empty(n_particles)
         bodies, group_k, group_kd, kind_counts = [], [], [], np.zeros(N_KINDS, np.int64)
         p0 = s0 = 0
-        for spec in self.specs:
+        for spec, mesh in zip(self.specs, meshes):
             rot = lattice.rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
-            pts = lattice.lattice_points(spec.n, spec.size)
+            pts = mesh.points.copy() if mesh else lattice.lattice_points(spec.n, spec.size)
             pts *= np.asarray(spec.initial_stretch, dtype=np.float64)
             sl = slice(p0, p0 + len(pts))
             x, v = x0[sl], v0[sl]
@@ -147,21 +163,38 @@ class ModelBuilder:
             for k, kd in (spec.stretch, spec.shear, spec.bend):
                 group_k.append(k)
                 group_kd.append(kd)
-            counts = lattice.spring_counts(spec.n)
+            counts = mesh.spring_counts() if mesh else lattice.spring_counts(spec.n)
             kind_counts += counts
-            surf = lattice.surface_triangles(spec.n) + p0
-            bodies.append(BodyInfo(sl, slice(s0, s0 + sum(counts)), surf, spec))
+            surf = np.zeros((0, 3), np.int64) if mesh else lattice.surface_triangles(spec.n) + p0
+            bodies.append(BodyInfo(sl, slice(s0, s0 + sum(counts)), surf, spec, mesh))
             p0 += len(x)
             s0 += sum(counts)
         model = Model.__new__(Model)
         model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies)
-        model._lattice = True
+        model._lattice = all(m is None for m in meshes)  # slab ranges by lattice arithmetic only for whole cubes
         for b, info in enumerate(bodies):
             spec = info.spec
+            if info.mesh is not None:
+                if info.mesh.n_springs:
+                    m = info.mesh
+                    _put_springs(model.spring_ends, model.spring_rest, model.spring_group, m.pairs,
+                                 m.rest.astype(model.real), m.kind.astype(np.int32), info.particles.start,
+                                 info.springs.start, spring_group(b, 0))
+                continue
             lattice.fill_springs(model.spring_ends, model.spring_rest, model.spring_group, spec.n,
                                  info.particles.start, info.springs.start, spring_group(b, 0),
                                  spec.size / (spec.n - 1))
         return model
+
+
+@ti.kernel
+def _put_springs(ends: ti.template(), rest: ti.template(), group: ti.template(), pairs: ti.types.ndarray(ndim=2),
+                 length: ti.types.ndarray(ndim=1), kind: ti.types.ndarray(ndim=1), p0: ti.i32, s0: ti.i32, g0: ti.i32):
+    """Write one body's springs given as host arrays (local particle indices) at ids s0, s0 + 1, ..."""
+    for s in range(pairs.shape[0]):
+        ends[s0 + s] = ti.Vector([p0 + pairs[s, 0], p0 + pairs[s, 1]])
+        rest[s0 + s] = ti.cast(length[s], float)
+        group[s0 + s] = g0 + kind[s]
 
 
 @ti.data_oriented
@@ -228,6 +261,9 @@ class Model:
         self.adj_offset = self.adj_other = self.adj_rest = self.adj_group = self.adj_spring = None
         self.adj_split = None  # allocated by ensure_adjacency
         self.gravity = ti.Vector.field(3, float, ())
+        # A hand pulling one particle (``grab.attach``: the demo's mouse); read with ti.static when
+        # a step compiles, so a model without one compiles no grab code.
+        self.grab = None
 
         # Kernel arguments in the run's precision: backends without f64 (Vulkan, Metal) take them.
         self._set_mass(self.mass_np.astype(self.real, copy=False))
@@ -357,6 +393,18 @@ class Model:
         sel = slice(None) if body is None else self.bodies[body].particles
         part = self.mass_np[sel]
         part[part > 0] = float(mass)
+        self._set_mass(self.mass_np.astype(self.real, copy=False))
+        self.mass_version += 1
+
+    def has_grab(self) -> bool:
+        """Whether steps on this model include a grab (``grab.attach``); a compile-time constant."""
+        return self.grab is not None
+
+    def set_masses(self, particles, mass: float):
+        """Set the mass [kg] of the ``particles`` (indices or a mask); 0 pins them (inverse mass 0:
+        forces no longer move them, every integrator keeps them at their own velocity). Bumps
+        ``mass_version``."""
+        self.mass_np[particles] = float(mass)
         self._set_mass(self.mass_np.astype(self.real, copy=False))
         self.mass_version += 1
 

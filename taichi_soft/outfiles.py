@@ -6,10 +6,24 @@ Used by the command line and the renderer; physics never writes files.
 from __future__ import annotations
 
 import os
+import re
 import secrets
+import shutil
 from pathlib import Path
 
 from .errors import OutputError
+
+
+def reserve_dir(path: Path) -> Path:
+    """A new empty hidden folder beside ``path``, named as ``reserve_temp`` names files (with the pid)."""
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+        try:
+            tmp.mkdir()
+            return tmp
+        except FileExistsError:
+            continue
+    raise OutputError(f"cannot create a temporary folder beside {path}")
 
 
 def reserve_temp(path: Path) -> Path:
@@ -58,3 +72,57 @@ def probe_writable(directory: Path) -> None:
     (``os.access`` says yes for root in /proc and /sys). Raises ``OSError`` if not."""
     tmp = reserve_temp(directory / "probe.tmp")
     tmp.unlink()
+
+
+# Hidden temporaries are named ``.{stem}.{pid}.{hex}{suffix}`` (files, ``reserve_temp``) and
+# ``.{name}.{pid}.{hex}`` (staging folders): the pid says whose they are.
+_TEMP = re.compile(r"\.(?P<base>.+)\.(?P<pid>\d+)\.(?P<hex>[0-9a-f]{8})(?P<suffix>(\.[^.]*)?)")
+
+
+def _running(pid: int) -> bool:
+    """Whether a process ``pid`` exists on this machine (one of another user's counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_temps(path: Path, inside: bool = False) -> list[str]:
+    """Remove the hidden temporaries a killed run (SIGKILL, power loss) left beside ``path`` -- those
+    of ``path`` itself and write probes of its folder -- and, with ``inside`` (``path`` an output
+    folder), every one inside it, if the process named in them is gone. Returns one line per
+    removal, to be said to the user. A live run's temporaries are left alone."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    said = _remove_dead(folder, lambda base, suffix: base + suffix == path.name or (base, suffix) in
+                        ((path.stem, path.suffix), ("probe", ".tmp")))
+    if inside and path.is_dir():
+        said += _remove_dead(path, lambda base, suffix: True)
+    return said
+
+
+def _remove_dead(folder: Path, wanted) -> list[str]:
+    said = []
+    try:
+        entries = list(folder.iterdir())
+    except OSError:
+        return said
+    for entry in entries:
+        m = _TEMP.fullmatch(entry.name)
+        if m is None or not wanted(m["base"], m["suffix"]):
+            continue
+        pid = int(m["pid"])
+        if pid == os.getpid() or _running(pid):
+            continue
+        try:
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+        except OSError:
+            continue
+        said.append(f"removed {entry}, a temporary left by process {pid}, which is no longer running")
+    return said

@@ -19,13 +19,22 @@ from .terrain import CONTACT_DEFAULTS
 from .terrain import DEFAULTS as TERRAIN_DEFAULTS
 from .terrain import KINDS as TERRAIN_KINDS
 
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+def _scenes_dir() -> Path:
+    """The scene folder: the checkout's top-level scenes/, or the installed package data
+    taichi_soft/scenes (``pip install .`` maps the one onto the other, see pyproject.toml)."""
+    here = Path(__file__).resolve().parent
+    checkout = here.parent / "scenes"
+    return checkout if (checkout / "plane.toml").is_file() else here / "scenes"
+
+
+SCENES_DIR = _scenes_dir()
 
 SIM_DEFAULTS = {"integrator": "semi_implicit_euler", "dt": 0.001, "duration": 5.0, "gravity": [0.0, -9.8, 0.0]}
 # Body defaults: the fields of model.BodySpec (their one home) in the scene's layout.
 _SPEC = BodySpec()
 SPRING_DEFAULT = {"k": _SPEC.stretch[0], "damping": _SPEC.stretch[1]}
 BODY_DEFAULTS = {
+    "shape": _SPEC.shape,
     "n": _SPEC.n,
     "size": _SPEC.size,
     "particle_mass": _SPEC.particle_mass,
@@ -36,6 +45,9 @@ BODY_DEFAULTS = {
     "initial_stretch": list(_SPEC.initial_stretch),
     **{kind: {"k": getattr(_SPEC, kind)[0], "damping": getattr(_SPEC, kind)[1]} for kind in ("stretch", "shear", "bend")},
 }
+SHAPES = ("cube", "mesh")
+# Keys of a mesh body only (no default: a mesh body names its file; scale replaces size).
+MESH_BODY_KEYS = ("mesh", "scale")
 RENDER_DEFAULTS = {"fps": 30, "resolution": [1280, 720], "camera": {}}
 CAMERA_KEYS = {"position", "lookat", "up", "fov"}
 TOP_KEYS = ("sim", "body", "terrain", "contact", "render", "solver")
@@ -52,12 +64,30 @@ def resolve_scene_path(name_or_path: str) -> Path:
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists() or "/" in name_or_path:
         if not p.is_file():
-            raise UserError(f"scene file {name_or_path!r} does not exist")
+            raise UserError(f"scene file {name_or_path!r} {_what_it_is(p)}; expected a .toml file or a scene name "
+                            f"({', '.join(scene_names())})")
         return p
     candidate = SCENES_DIR / f"{name_or_path}.toml"
     if not candidate.is_file():
         raise UserError(f"unknown scene {name_or_path!r}; choose one of: {', '.join(scene_names())} or a path to a .toml file")
     return candidate
+
+
+def _what_it_is(p: Path) -> str:
+    """What a path that is not a regular file is, for an error message."""
+    if p.is_dir():
+        return "is a directory"
+    if p.is_char_device():
+        return "is a character device, not a file"
+    if p.is_block_device():
+        return "is a block device, not a file"
+    if p.is_fifo():
+        return "is a named pipe, not a file"
+    if p.is_socket():
+        return "is a socket, not a file"
+    if p.is_symlink():
+        return "is a broken symbolic link"
+    return "does not exist"
 
 
 # -- overrides -----------------------------------------------------------------------------
@@ -220,11 +250,12 @@ def validate(raw: dict, integrator_names=None) -> dict:
     for b, given in enumerate(bodies_raw):
         key = f"body.{b}"
         body = _merge(BODY_DEFAULTS, _table(key, given))
-        _check_keys(key, body, BODY_DEFAULTS)
+        _check_keys(key, body, [*BODY_DEFAULTS, *MESH_BODY_KEYS])
         n = body["n"]
         if not isinstance(n, int) or isinstance(n, bool) or not 2 <= n <= MAX_N:
             raise UserError(f"{key}.n = {n!r}: must be an integer from 2 to {MAX_N}")
         body["size"] = _positive(f"{key}.size", body["size"])
+        _validate_shape(key, body, given)
         body["particle_mass"] = _positive(f"{key}.particle_mass", body["particle_mass"])
         for vk in ("center", "velocity", "angular_velocity"):
             body[vk] = _vec3(f"{key}.{vk}", body[vk])
@@ -294,6 +325,48 @@ def validate(raw: dict, integrator_names=None) -> dict:
     return {"sim": sim, "body": bodies, "terrain": terrain, "contact": contact, "render": render, "solver": solver}
 
 
+def _validate_shape(key: str, body: dict, given: dict):
+    """``shape``, and for a mesh body its ``mesh`` file and ``scale``: the mesh is read and filled
+    here (``meshbody``, cached), so a bad or too thin mesh fails before any work, and ``size``
+    becomes the body's longest side [m] whichever of size and scale was given. A body that names
+    a ``mesh`` and no ``shape`` is a mesh body."""
+    if "mesh" in given and "shape" not in given:
+        body["shape"] = "mesh"  # naming a mesh file makes a mesh body (--set body.0.mesh=... on a cube scene)
+    shape = body["shape"]
+    if shape not in SHAPES:
+        raise UserError(f"{key}.shape = {shape!r}: choose one of {', '.join(SHAPES)}")
+    if shape == "cube":
+        for k in MESH_BODY_KEYS:
+            if k in body:
+                raise UserError(f"{key}.{k} is only for shape = \"mesh\" (this body is a cube)")
+        return
+    mesh = body.get("mesh")
+    if not isinstance(mesh, str) or not mesh:
+        raise UserError(f"{key}.mesh = {mesh!r}: a mesh body needs the path of an OBJ, STL or PLY file")
+    scale = body.get("scale")
+    if scale is not None:
+        if "size" in given:
+            raise UserError(f"{key}.scale and {key}.size are both given: give one (size: the longest side in m; "
+                            "scale: metres per mesh unit)")
+        scale = body["scale"] = _positive(f"{key}.scale", scale)
+    from .meshbody import mesh_lattice
+
+    filled = mesh_lattice(mesh, body["n"], size=None if scale else body["size"], scale=scale, key=f"{key}.mesh")
+    body["size"] = float(filled.extent.max())
+
+
+def resolve_mesh_paths(raw: dict, base: Path, from_cli: set):
+    """Make each body's relative ``mesh`` path absolute: relative to ``base`` (the scene file's
+    folder), or to the current directory for a path given on the command line (``from_cli``: the
+    dotted keys that came from --set or flags)."""
+    bodies = raw.get("body", [])
+    for b, body in enumerate(bodies if isinstance(bodies, list) else [bodies]):
+        mesh = body.get("mesh") if isinstance(body, dict) else None
+        if isinstance(mesh, str) and mesh and not Path(mesh).is_absolute():
+            cli = f"body.{b}.mesh" in from_cli or (b == 0 and "body.mesh" in from_cli)
+            body["mesh"] = str((Path.cwd() if cli else base) / mesh)
+
+
 def parse_resolution(value, key="--resolution") -> list[int]:
     """``"1280x720"`` or ``[1280, 720]`` -> [width, height] in pixels (16..8192 each)."""
     if isinstance(value, str):
@@ -358,6 +431,7 @@ def scene_from_dict(raw: dict, name="custom", path=None, overrides=(), integrato
     for key, (value, text) in (flags or {}).items():
         _set_path(raw, key.split("."), value)
         sources[key] = text
+    resolve_mesh_paths(raw, Path(path).parent if path else Path.cwd(), set(sources))
     try:
         data = validate(raw, integrator_names)
     except UserError as e:

@@ -14,18 +14,26 @@ import numpy as np
 from . import runtime
 from .collision import BodyContacts, body_radius
 from .errors import UserError
-from .lattice import rotation_matrix
+from .lattice import SPRING_KINDS, rotation_matrix
 from .forces import Diagnostics
 from .integrators import make_integrator
+from .integrators.implicit.health import assess
+from .integrators.linear_stability import divergence_hint
 from .model import BodySpec, ModelBuilder
 from .scene import Scene
 from .terrain import make_terrain
 
 
+# Wall time [s] of one launch of a run that keeps no frames (``Simulation._free_run``): long
+# enough that the per-launch cost vanishes, short enough for a live progress bar and Ctrl-C.
+FREE_RUN_SECONDS = 0.1
+
+
 def body_spec(body: dict) -> BodySpec:
     """A validated ``[[body]]`` table as a ``BodySpec``."""
     return BodySpec(
-        n=body["n"], size=body["size"], particle_mass=body["particle_mass"], center=tuple(body["center"]),
+        n=body["n"], size=body["size"], shape=body.get("shape", "cube"), mesh=body.get("mesh"), scale=body.get("scale"),
+        particle_mass=body["particle_mass"], center=tuple(body["center"]),
         rotation_axis=tuple(body["rotation"]["axis"]), rotation_degrees=body["rotation"]["degrees"],
         velocity=tuple(body["velocity"]), angular_velocity=tuple(body["angular_velocity"]),
         initial_stretch=tuple(body["initial_stretch"]),
@@ -160,12 +168,17 @@ class Simulation:
     def run(self, duration: float, fps: float, on_frame=None, record: bool = False, progress=None) -> RunResult:
         """Step for ``duration`` [s], stopping at each output frame (``fps``) and on divergence.
 
-        ``on_frame(sim)`` is called at t = 0, at every frame and at the final state; with
-        ``record`` the (t, x, v) of each of those is kept in ``RunResult.frames``. ``progress``,
-        if given, is called as ``progress(steps_done, total_steps, sim)``.
+        Without ``on_frame`` and ``record`` nothing needs the frames, and the steps go in long
+        launches instead (``_free_run``). ``on_frame(sim)`` is called at t = 0, at every frame and
+        at the final state; with ``record`` the (t, x, v) of each of those is kept in
+        ``RunResult.frames``. ``progress``, if given, is called as ``progress(steps_done,
+        total_steps, sim)``.
         """
         total = step_count(duration, self.dt)
-        schedule = frame_steps(total, fps, self.dt)
+        if on_frame is None and not record:
+            schedule = None  # nobody looks at the frames: step in long launches (_free_run)
+        else:
+            schedule = frame_steps(total, fps, self.dt)
         frames = []
         start = time.perf_counter()
         base = self.steps
@@ -178,7 +191,9 @@ class Simulation:
                 on_frame(self)
 
         visit()
-        for target in schedule[1:]:
+        if schedule is None:
+            self._free_run(total, progress)
+        for target in schedule[1:] if schedule else ():
             want = base + target - self.steps
             self.advance(want)
             if self.diverged:
@@ -191,16 +206,38 @@ class Simulation:
         wall = time.perf_counter() - start
         return RunResult(self.steps - base, self.time, wall, self.diverged, self.diverged_at, self.diverged_step, frames)
 
+    def _free_run(self, total: int, progress=None):
+        """``total`` steps with no frame stops, in launches of FREE_RUN_SECONDS of wall time or more.
+
+        Stopping at every output frame costs a launch and a few checks per frame (about 0.3 ms at
+        n = 10, where a 30 fps frame of 1 ms steps is 2-2.5 ms of work; docs/benchmarks/README.md,
+        issue 25). Chunks start at 16 steps and double while a launch takes less than
+        FREE_RUN_SECONDS, so the progress bar still moves.
+        """
+        base, chunk = self.steps, 16
+        while self.steps - base < total and not self.diverged:
+            t0 = time.perf_counter()
+            self.advance(min(chunk, total - (self.steps - base)))
+            if time.perf_counter() - t0 < FREE_RUN_SECONDS:
+                chunk *= 2
+            if progress is not None:
+                progress(self.steps - base, total, self)
+
     def suggest_dt(self) -> float:
-        """A smaller step to try after a divergence: half the current one, rounded down to 2 digits."""
-        d = self.dt / 2
-        exp = math.floor(math.log10(d))
-        return math.floor(d / 10**exp * 10) / 10 * 10**exp
+        """A step [s] to try after a divergence (see ``divergence_hint``)."""
+        return self.divergence_hint()[0]
+
+    def divergence_hint(self) -> tuple[float, str]:
+        """(step [s], one sentence) after a divergence: below the method's linear stability limit
+        for this scene, and the methods that take the current step (``linear_stability``)."""
+        return divergence_hint(self.model, self.integrator_name, self.dt)
 
     def summary(self, result: RunResult) -> dict:
         """The run summary (what ``--summary`` writes)."""
         m = self.model
         final = self.measure()
+        stats = {**self.integrator.stats(), **(self.contacts.stats() if self.contacts else {})}
+        warnings, meaningless = assess(stats)
         return {
             "scene": self.scene.name,
             "integrator": self.integrator_name,
@@ -210,13 +247,16 @@ class Simulation:
             "particles": m.n_particles,
             "springs": m.spring_counts(),
             "bodies": len(m.bodies),
+            **({"mesh_bodies": {str(b): d for b, d in mesh_bodies(m).items()}} if any(b.mesh is not None for b in m.bodies) else {}),
             "terrain": self.terrain.kind,
             **{k: v for k, v in (runtime.current() or {}).items() if k in ("arch", "precision", "fast_math")},
             "diverged": result.diverged,
             "diverged_at": result.diverged_at,
             "wall_seconds": result.wall_seconds,
             "steps_per_second": result.steps / result.wall_seconds if result.wall_seconds > 0 else None,
-            "integrator_stats": {**self.integrator.stats(), **(self.contacts.stats() if self.contacts else {})},
+            "integrator_stats": stats,
+            "solver_warnings": warnings,
+            "meaningless": meaningless,
             "final": {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in final.items()},
         }
 
@@ -233,7 +273,11 @@ def check_start(sim: Simulation):
     bodies = sim.model.bodies
     for b, body in enumerate(bodies):
         for a in range(b):
-            depth = overlap_depth(bodies[a].spec, x0[body.particles], body_radius(bodies[a].spec), body_radius(body.spec))
+            ra, rb = body_radius(bodies[a].spec), body_radius(body.spec)
+            if bodies[a].mesh is not None or body.mesh is not None:
+                depth = particle_overlap(x0[bodies[a].particles], x0[body.particles], ra + rb)
+            else:
+                depth = overlap_depth(bodies[a].spec, x0[body.particles], ra, rb)
             if depth > 0:
                 raise UserError(f"body.{b} starts {depth:.3g} m inside body.{a} (particles of different bodies "
                                 f"must start at least their contact distance apart); move them apart (body.{b}.center)")
@@ -247,6 +291,36 @@ def overlap_depth(spec: BodySpec, points: np.ndarray, radius: float, point_radiu
     half = 0.5 * spec.size * np.asarray(spec.initial_stretch) + radius + point_radius
     depth = (half - np.abs(q)).min(axis=1)
     return float(max(depth.max(), 0.0))
+
+
+def particle_overlap(a: np.ndarray, b: np.ndarray, distance: float) -> float:
+    """How far [m] the closest pair of points of ``a`` and ``b`` [n, 3] is inside ``distance``; 0 if none is."""
+    from scipy.spatial import cKDTree
+
+    closest, _ = cKDTree(a).query(b, k=1, distance_upper_bound=distance)
+    return float(max(distance - closest.min(), 0.0))
+
+
+def body_lines(model) -> list[str]:
+    """One line per mesh body: what was read and what it made (the summary's ``mesh_bodies`` too)."""
+    return [f"body.{b}: {d['mesh']}: {d['triangles']} triangles, n = {d['n']} (spacing {d['spacing']:.3g} m) -> "
+            f"{d['particles']} particles, {sum(d['springs'].values())} springs"
+            + "".join(f"; {note}" for note in d["notes"]) for b, d in mesh_bodies(model).items()]
+
+
+def mesh_bodies(model) -> dict:
+    """{body index: facts} of the model's mesh bodies: file, triangles, n, spacing [m], particles,
+    springs by kind, particles dropped, volume of the mesh and of the filled lattice [m^3], notes."""
+    out = {}
+    for b, info in enumerate(model.bodies):
+        m = info.mesh
+        if m is None:
+            continue
+        out[b] = {"mesh": str(m.path), "triangles": len(m.triangles), "n": info.spec.n, "spacing": m.h,
+                  "particles": m.n_particles, "springs": dict(zip(SPRING_KINDS, m.spring_counts())),
+                  "dropped": m.dropped, "mesh_volume": m.mesh_volume, "lattice_volume": m.n_particles * m.h ** 3,
+                  "notes": list(m.notes)}
+    return out
 
 
 def states_arrays(frames: list, real) -> dict:

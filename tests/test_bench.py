@@ -86,6 +86,23 @@ def test_numpy_and_warp_references_agree_with_engine(precision):
     assert r["engine_steps_per_s"] > 0 and r["numpy_steps_per_s"] > 0
 
 
+def test_yardstick_reference_agrees_with_engine():
+    """The plain-Taichi yardstick row of the speed study takes the engine's steps (f64 rounding)."""
+    from taichi_soft.bench.references import YardstickStepper
+    from taichi_soft.bench.speed import REFERENCE_SCENE
+    from taichi_soft.scene import load_scene
+    from taichi_soft.simulation import Simulation
+
+    sim = Simulation(load_scene("plane", ["body.0.n=4", *REFERENCE_SCENE]), integrator="semi_implicit_euler")
+    ys = YardstickStepper(sim.model, sim.model.x0_np, sim.model.v0_np, sim.dt)
+    sim.advance(20)
+    ys.step(20)
+    x, v = ys.numpy()
+    assert np.abs(x - sim.state.x.to_numpy()).max() < 1e-12
+    assert np.abs(v - sim.state.v.to_numpy()).max() < 1e-9
+    assert np.abs(x - sim.model.x0_np).max() > 1e-4  # it moved
+
+
 def test_bench_report_quick_writes_every_file(cli, tmp_path):
     out = tmp_path / "bench"
     r = cli("bench", "report", "--quick", "--out", out, timeout=900)

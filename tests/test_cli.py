@@ -157,19 +157,30 @@ def test_frame_schedule_is_exact(total, fps, dt):
         assert abs(s * dt - k / fps) <= dt / 2 + 1e-12
 
 
-@pytest.mark.parametrize("dt", [0.001, 0.005])
-def test_f32_implicit_small_steps_are_noted(cli, tmp_path, dt):
-    """Implicit solvers in f32 below F32_IMPLICIT_MIN_DT get a note on stderr; at that dt the free
-    fall they simulate is still v = g t (within 0.2 % after 0.6 s), so the note's limit is safe."""
-    from taichi_soft.integrators.base import F32_IMPLICIT_MIN_DT
+def test_bench_help_hides_the_internal_speed_worker():
+    """Issue 24: `bench speed-worker` (one process of `bench report`) is accepted, never listed."""
+    from taichi_soft.cli import build_parser
+
+    parser = build_parser()
+    bench = parser._subparsers._group_actions[0].choices["bench"]
+    assert "speed-worker" not in bench.format_help() and "speed," in bench.format_help()
+    assert parser.parse_args(["bench", "speed-worker"]).study == "speed-worker"
+    with pytest.raises(UserError) as e:
+        parser.parse_args(["bench", "nope"])
+    assert "speed-worker" not in str(e.value)
+
+
+def test_run_dry_run_says_what_would_be_simulated_and_the_memory(cli, tmp_path):
+    """Issue 24: `run --dry-run` prints the run and the memory estimate, simulates and writes nothing."""
+    from taichi_soft.memory import estimate
+    from taichi_soft.scene import load_scene
 
     summary = tmp_path / "s.json"
-    r = cli("run", "--scene", "plane", "--set", "terrain.kind=none", "--set", "body.0.n=4", "--integrator",
-            "fast_mass_spring", "--precision", "f32", "--dt", str(dt), "--duration", "0.6", "--summary", summary)
+    r = cli("run", "--dry-run", "--set", "body.0.n=6", "--integrator", "implicit_euler", "--dt", "0.01",
+            "--duration", "2", "--summary", summary)
     assert r.returncode == 0, r.stderr
-    noted = [line for line in r.stderr.splitlines() if line.startswith("note: fast_mass_spring in f32")]
-    assert len(noted) == (1 if dt < F32_IMPLICIT_MIN_DT else 0), r.stderr
-    if dt >= F32_IMPLICIT_MIN_DT:
-        s = json.loads(summary.read_text())
-        speed = np.sqrt(2 * s["final"]["kinetic_energy"] / 64.0)  # 64 particles of 1 kg, all at one speed
-        assert speed == pytest.approx(9.8 * 0.6, rel=2e-3)
+    host = estimate(load_scene("plane", ["body.0.n=6", "sim.integrator=implicit_euler"]).data, None, "f64", "cpu")["host"]
+    assert "integrator implicit_euler, dt = 0.01 s, duration 2 s: 200 steps, 61 frames at 30 fps" in r.stdout
+    assert "216 particles" in r.stdout and f"memory estimate {host / 1e6:.0f} MB host" in r.stdout
+    assert f"would write: --summary {summary}" in r.stdout
+    assert not summary.exists() and list(tmp_path.iterdir()) == []

@@ -139,9 +139,9 @@ def chromium() -> str:
                 "`bash scripts/setup.sh`; the gallery page was NOT checked in a browser")
 
 
-def browse(binary, url, *extra):
+def browse(binary, url, *extra, width=1400):
     cmd = [binary, "--headless", "--no-sandbox", "--disable-gpu", "--allow-file-access-from-files",
-           "--force-device-scale-factor=1", "--window-size=1400,1400", "--virtual-time-budget=6000", *extra, url]
+           "--force-device-scale-factor=1", f"--window-size={width},1400", "--virtual-time-budget=6000", *extra, url]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
 
 
@@ -210,3 +210,62 @@ def test_bad_gallery_input_exits_2_before_any_work(tmp_path):
         code, _, err = run_main(["gallery", *argv, "--out", str(tmp_path / "g")])
         assert code == 2 and text in err and len(err.strip().splitlines()) == 1, (argv, err)
     assert not (tmp_path / "g").exists() or not any((tmp_path / "g").iterdir())
+
+
+# -- issue 24: every element of a card stays inside it, at ordinary window widths ------------------
+BOXES = """<script>
+(function () {
+  function report() {
+  var out = [];
+  document.querySelectorAll("figure.cell").forEach(function (f) {
+    var c = f.getBoundingClientRect();
+    f.querySelectorAll("*").forEach(function (e) {
+      var r = e.getBoundingClientRect();
+      if (r.width === 0 && r.height === 0) return;
+      if (r.left < c.left - 0.5 || r.right > c.right + 0.5 || r.top < c.top - 0.5 || r.bottom > c.bottom + 0.5)
+        out.push({cell: f.id, tag: e.tagName, left: r.left, right: r.right, card: [c.left, c.right]});
+    });
+  });
+  var pre = document.getElementById("probe") || document.body.appendChild(document.createElement("pre"));
+  pre.id = "probe";
+  pre.textContent = JSON.stringify({cells: document.querySelectorAll("figure.cell").length, outside: out,
+                                    page: document.documentElement.scrollWidth, failed: document.querySelectorAll("p.failed").length});
+  }
+  report(); setTimeout(report, 3000);  // after the missing videos' error notes are in
+})();
+</script></body>"""
+
+
+def _full_width_page() -> str:
+    """The page of a full gallery (4 terrains x every integrator + compare), from made-up results:
+    the layout, not the runs, is under test (videos are absent; the page says so in each card)."""
+    from taichi_soft.gallery import Plan, page_html
+    from taichi_soft.integrators import names
+
+    plan = Plan(["plane", "tilted_plane", "sphere", "bowl"], names(), None, (640, 360), None, [], Path("."))
+    energy = [(0.01 * k, 88000.0 - 30.0 * k + (5000.0 if k == 40 else 0.0)) for k in range(200)]
+    cells = {}
+    for t in plan.terrains:
+        for c in plan.integrators:
+            summary = {"dt": 0.001, "diverged": c == "explicit_euler", "diverged_at": 1.2345 if c == "explicit_euler" else None,
+                       "final": {"total_energy": -123456.789}, "wall_seconds": 12.3}
+            cells[f"{t}/{c}"] = {"video": f"{t}_{c}.mp4", "result": {
+                "summary": summary, "stiffness": "2000 N/m", "frames": 151, "energy": energy}}
+        tiles = [{"integrator": c, "diverged_at": None, "final_energy": -12345.678} for c in plan.integrators]
+        cells[f"{t}/compare"] = {"video": f"{t}_compare.mp4", "result": {"dt": 0.001, "frames": 151, "tiles": tiles}}
+    return page_html(plan, cells, 321.0)
+
+
+@pytest.mark.parametrize("width", [1280, 1920])
+def test_no_element_leaves_its_card_at_ordinary_widths(tmp_path, width):
+    """The energy plots were fixed 220 px SVGs: at 1400 px they spilled into the next column."""
+    binary = chromium()
+    page = tmp_path / "index.html"
+    page.write_text(_full_width_page().replace("</body>", BOXES), encoding="utf-8")
+    p = browse(binary, page.as_uri(), "--dump-dom", width=width)
+    assert p.returncode == 0, p.stderr[-2000:]
+    start = p.stdout.index('<pre id="probe">') + len('<pre id="probe">')
+    state = json.loads(__import__("html").unescape(p.stdout[start:p.stdout.index("</pre>", start)]))
+    assert state["cells"] == 4 * 7 and state["failed"] == 4 * 7  # each card says its video is missing
+    assert state["outside"] == []
+    assert state["page"] <= width  # the seven columns fit: no sideways scrolling

@@ -6,7 +6,7 @@ import taichi as ti
 from taichi.lang.field import Field
 from taichi.lang.matrix import MatrixField
 
-from taichi_soft import memory
+from taichi_soft import memory, runtime
 from taichi_soft.scene import load_scene
 
 _BYTES = {ti.f64: 8, ti.f32: 4, ti.i32: 4, ti.i64: 8, ti.i8: 1, ti.u8: 1}
@@ -63,7 +63,8 @@ def test_field_table_matches_allocated_fields():
         scaling = [f for f in fields if f.shape and f.shape[0] >= min(n_p, n_s)]
         fixed = sum(_field_bytes(f) for f in fields if f not in scaling)
         sets = ["body.0.n=8", f"solver.mode={mode}", f"solver.forces={forces}"]
-        est = memory.estimate(load_scene("plane", sets).data, name, "f64", "cpu")
+        est = memory.estimate(load_scene("plane", sets).data, name, "f64", "cpu",
+                              fast_math=runtime.current()["fast_math"])
         assert fixed < 2048, name
         assert abs(sum(_field_bytes(f) for f in scaling) - est["fields"]) <= 64, (name, mode, forces)  # n + 1 sized offsets
 

@@ -135,3 +135,69 @@ def test_a_duration_that_is_not_whole_steps_says_what_is_simulated(cli, tmp_path
     assert r.returncode == 0, r.stderr
     assert "simulating 3 steps of 0.3 s = 0.9 s" in r.stderr
     assert json.loads(summary.read_text())["sim_time"] == pytest.approx(0.9)
+
+
+# -- issue 24: missing folders, stale temporaries, what a --scene path is -------------------------
+@pytest.mark.parametrize("flag,name", [("--video", "x.mp4"), ("--summary", "x.json"), ("--frames", "frames")])
+def test_a_missing_parent_folder_is_refused_not_created(cli, tmp_path, flag, name):
+    target = tmp_path / "missing" / "deeper" / name
+    r = cli("run", "--duration", "30", flag, target)  # 30 s would take long: refused first
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and flag in lines[0] and "does not exist" in lines[0], lines
+    assert not (tmp_path / "missing").exists()
+
+
+def _dead_pid():
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_stale_temporaries_of_dead_runs_are_removed_and_said(cli, tmp_path):
+    """A run killed by SIGKILL leaves its hidden temporaries; the next run to the same path removes
+    those of processes that are gone (and says so), never those of a live process, inside the
+    project's default out/ (created when missing, the one folder that is)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    dead, live = _dead_pid(), os.getpid()
+    stale = [out / f".s.{dead}.0123abcd.json", out / f".probe.{dead}.00ff00ff.tmp"]
+    for p in stale:
+        p.write_text("partial")
+    kept = [out / f".s.{live}.cafecafe.json", out / f".other.{dead}.0badf00d.json", out / "notes.txt"]
+    for p in kept:
+        p.write_text("keep")
+    r = cli("run", *TINY, "--duration", "0.01", "--summary", "out/s.json", "--states", "out/new/st.npz",
+            cwd=tmp_path)  # out/new is created: it is inside the default out/
+    assert r.returncode == 0, r.stderr
+    removed = [line for line in r.stderr.splitlines() if line.startswith("note: removed ")]
+    assert len(removed) == 2 and all(f"process {dead}, which is no longer running" in line for line in removed), r.stderr
+    assert not any(p.exists() for p in stale)
+    assert all(p.exists() for p in kept)
+    assert (out / "s.json").exists() and (out / "new" / "st.npz").exists()
+
+
+def test_stale_staging_folders_are_removed_but_not_live_ones(tmp_path):
+    from taichi_soft.outfiles import remove_stale_temps
+
+    dead, live = _dead_pid(), os.getpid()
+    frames = tmp_path / "frames"
+    old, ours = tmp_path / f".frames.{dead}.deadbeef", tmp_path / f".frames.{live}.feedf00d"
+    for d in (old, ours):
+        d.mkdir()
+        (d / "frame_00000.png").write_bytes(b"png")
+    frames.mkdir()
+    inside = frames / f".frame_00003.{dead}.12345678.png"
+    inside.write_bytes(b"png")
+    said = remove_stale_temps(frames, inside=True)
+    assert not old.exists() and not inside.exists() and ours.exists()
+    assert sorted(said) == sorted(f"removed {p}, a temporary left by process {dead}, which is no longer running"
+                                  for p in (old, inside))
+
+
+@pytest.mark.parametrize("path,what", [("/dev/null", "is a character device"), ("DIR", "is a directory"),
+                                       ("DIR/none.toml", "does not exist")])
+def test_a_scene_path_that_is_not_a_file_says_what_it_is(tmp_path, path, what):
+    path = path.replace("DIR", str(tmp_path))
+    with pytest.raises(UserError, match=f"scene file '{path}' {what}"):
+        load_scene(path)

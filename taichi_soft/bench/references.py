@@ -153,3 +153,66 @@ def _warp_kernels(fast_math=False):
 
     _WARP_KERNELS = (springs, integrate)
     return _WARP_KERNELS
+
+
+class YardstickStepper:
+    """The plain-Taichi yardstick (../shared/bench/taichi_ref.py --mode gather --perspring) on the
+    engine's model: one fused parallel loop per step, each particle sums its springs from a CSR
+    list (every spring twice), stiffness and damping read per entry from fields, ping-pong state.
+    No terrain, no divergence check, constants baked in: what a plain Taichi kernel does with
+    the same work. ``step(n)`` advances; ``numpy()`` -> (x, v). Needs a running Taichi."""
+
+    def __init__(self, model, x, v, dt):
+        import taichi as ti
+
+        model.ensure_adjacency()
+        n, e = model.n_particles, 2 * model.n_springs
+        group = model.adj_group.to_numpy()[:e]
+        self.model, self.n = model, n
+        self.k, self.kd = ti.field(float, max(e, 1)), ti.field(float, max(e, 1))
+        self.k.from_numpy(model.group_k.to_numpy()[group])
+        self.kd.from_numpy(model.group_kd.to_numpy()[group])
+        self.xs = [ti.Vector.field(3, float, n) for _ in range(2)]
+        self.vs = [ti.Vector.field(3, float, n) for _ in range(2)]
+        self.inv_m = np.where(model.mass_np > 0, 1.0 / model.mass_np, 0.0).astype(model.real)
+        assert np.all(self.inv_m == self.inv_m[0]), "the yardstick bakes one particle mass in"
+        self.dt, self.g = float(dt), tuple(float(c) for c in model.gravity[None].to_numpy())
+        self.kernel = self._make_kernel()
+        self.set(x, v)
+
+    def set(self, x, v):
+        self.xs[0].from_numpy(np.asarray(x, self.model.real))
+        self.vs[0].from_numpy(np.asarray(v, self.model.real))
+        self.cur = 0
+
+    def _make_kernel(self):
+        import taichi as ti
+
+        m, k_, kd_ = self.model, self.k, self.kd
+        n, dt, inv_m, g = self.n, self.dt, float(self.inv_m[0]), self.g
+
+        @ti.kernel
+        def step(xo: ti.template(), vo: ti.template(), xn: ti.template(), vn: ti.template()):
+            for i in range(n):
+                xi, vi = xo[i], vo[i]
+                fi = ti.Vector([0.0, 0.0, 0.0])
+                for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                    j = m.adj_other[e]
+                    d = xi - xo[j]
+                    length = d.norm()
+                    lh = d / length
+                    fi += -k_[e] * (length - m.adj_rest[e]) * lh - kd_[e] * (vi - vo[j]).dot(lh) * lh
+                vnew = vi + dt * (fi * inv_m + ti.Vector(g))
+                vn[i] = vnew
+                xn[i] = xi + dt * vnew
+
+        return step
+
+    def step(self, n: int = 1):
+        for _ in range(n):
+            c = self.cur
+            self.kernel(self.xs[c], self.vs[c], self.xs[1 - c], self.vs[1 - c])
+            self.cur = 1 - c
+
+    def numpy(self):
+        return self.xs[self.cur].to_numpy(), self.vs[self.cur].to_numpy()

@@ -265,7 +265,7 @@ def run_speed_worker(quick: bool) -> dict:
     for r in rows:
         if r["integrator"] != "semi_implicit_euler":
             continue
-        b = bytes_per_step(r["particles"], r["springs"], real_bytes, r["forces"])
+        b = bytes_per_step(r["particles"], r["springs"], real_bytes, r["forces"], r.get("row_width", 0))
         bound.append({"n": r["n"], "bytes_per_step": b, "bound_steps_per_s": bw / b,
                       "measured_steps_per_s": r["steps_per_s"], "fraction_of_bound": r["steps_per_s"] * b / bw})
     return {"config": cfg, "rows": rows, "bandwidth_bytes_per_s": bw, "bound": bound, "profile": profile,
@@ -482,21 +482,33 @@ def speed_markdown(result: dict) -> str:
     return "\n".join(out)
 
 
-GOALS = (  # issue 12: (label, numerator row, denominator row, goal ratio)
+GOALS = (  # issues 12 and 25: (label, numerator row, denominator row, goal ratio)
     ("f32 + fast math / Warp CPU f32, n = 10", dict(group="n10", kind="engine", precision="f32", fast_math=True),
-     dict(group="n10", kind="warp", precision="f32", arch="cpu"), 2.0),
+     dict(group="n10", kind="warp", precision="f32", arch="cpu"), 3.0),
+    ("f32 through run (plane) / Warp CPU f32, n = 10", dict(group="n10", kind="run", precision="f32"),
+     dict(group="n10", kind="warp", precision="f32", arch="cpu"), 2.8),
+    ("f32 through run (plane) / engine kernel, n = 10", dict(group="n10", kind="run", precision="f32"),
+     dict(group="n10", kind="engine", precision="f32", fast_math=True), 0.9),
     ("f32 + fast math / Warp CPU f32, n = 40", dict(group="n40", kind="engine", precision="f32", fast_math=True),
      dict(group="n40", kind="warp", precision="f32", arch="cpu"), 3.0),
+    ("f32 + fast math / yardstick f32, n = 40", dict(group="n40", kind="engine", precision="f32", fast_math=True),
+     dict(group="n40", kind="yardstick", precision="f32"), 0.9),
     ("f64 + fast math / Warp CPU f64, n = 40", dict(group="n40", kind="engine", precision="f64", fast_math=True),
-     dict(group="n40", kind="warp", precision="f64", arch="cpu"), 2.0),
-    ("2 threads / 1 thread, f32, n = 40", dict(group="threads_n40", precision="f32", threads=2),
-     dict(group="threads_n40", precision="f32", threads=1), 1.7),
-    ("2 threads / 1 thread, f64, n = 40", dict(group="threads_n40", precision="f64", threads=2),
-     dict(group="threads_n40", precision="f64", threads=1), None),
-    ("2 threads / 1 thread, f32, n = 80", dict(group="threads_n80", precision="f32", threads=2),
-     dict(group="threads_n80", precision="f32", threads=1), None),
-    ("2 threads / 1 thread, f64, n = 80", dict(group="threads_n80", precision="f64", threads=2),
-     dict(group="threads_n80", precision="f64", threads=1), None),
+     dict(group="n40", kind="warp", precision="f64", arch="cpu"), 2.5),
+    ("f64 + fast math / yardstick f64, n = 40", dict(group="n40", kind="engine", precision="f64", fast_math=True),
+     dict(group="n40", kind="yardstick", precision="f64"), None),
+    ("2 threads / 1 thread, f32, n = 40", dict(group="threads_n40", kind="engine", precision="f32", threads=2),
+     dict(group="threads_n40", kind="engine", precision="f32", threads=1), 1.85),
+    ("engine / yardstick, f32, n = 40, 1 thread", dict(group="threads_n40", kind="engine", precision="f32", threads=1),
+     dict(group="threads_n40", kind="yardstick", precision="f32", threads=1), 0.9),
+    ("engine / yardstick, f32, n = 40, 2 threads", dict(group="threads_n40", kind="engine", precision="f32", threads=2),
+     dict(group="threads_n40", kind="yardstick", precision="f32", threads=2), 0.9),
+    ("2 threads / 1 thread, f64, n = 40", dict(group="threads_n40", kind="engine", precision="f64", threads=2),
+     dict(group="threads_n40", kind="engine", precision="f64", threads=1), None),
+    ("2 threads / 1 thread, f32, n = 80", dict(group="threads_n80", kind="engine", precision="f32", threads=2),
+     dict(group="threads_n80", kind="engine", precision="f32", threads=1), None),
+    ("2 threads / 1 thread, f64, n = 80", dict(group="threads_n80", kind="engine", precision="f64", threads=2),
+     dict(group="threads_n80", kind="engine", precision="f64", threads=1), None),
 )
 
 
@@ -510,25 +522,32 @@ def equal_settings_markdown(rows: list[dict], load) -> list[str]:
            "compiling and a warm-up the processes time one repeat (about 0.25 s of steps) each in turn, round after "
            "round, so the ratios below come from one interleaved run. Median steps/s; spread = (max - min) / median "
            "of the repeats. Warp: its CPU backend (one thread) with its `fast_math` module option. `ns / spring`: "
-           "wall time per step over the number of springs. `steps / CPU s`: steps per second of the worker's CPU "
+           "wall time per step over the number of springs; `ns / eval`: over the spring evaluations (a gather "
+           "evaluates each spring twice, once from each end). `yardstick`: the plain Taichi gather kernel of "
+           "../shared/bench/taichi_ref.py (CSR rows, per-entry k and kd, no terrain, no checks) on the same cube. "
+           "`via run`: the engine through `Simulation.run` (30 fps frame schedule, progress callback) with the "
+           "plane terrain, as `run` without a video does. `steps / CPU s`: steps per second of the worker's CPU "
            "time (all its threads): on a loaded machine, where other processes take the cores, it is the steadier "
            "measure of the code itself (for 2 threads it counts both). `max abs diff`: final positions after 20 steps against "
            "the group's first row (f64, fast math off; at 1 thread for the scaling rows) [m]. "
            "`thread overlap` (2-thread rows): after each of their repeats, two equal 2-ms tasks of one parallel "
            "loop were timed: 1 = the machine ran both threads at once, 0 = one after the other (median). "
            f"Load average (1, 5, 15 min) when the study ended: {', '.join(f'{x:.2f}' for x in load)}.", "",
-           "| group | code | arch | precision | fast math | threads | launch, forces | steps/s | ns / spring | spread | steps / CPU s | max abs diff [m] |",
-           "|---|---|---|---|---|---:|---|---:|---:|---:|---:|---:|"]
+           "| group | code | arch | precision | fast math | threads | launch, forces | steps/s | ns / spring | ns / eval | spread | steps / CPU s | max abs diff [m] |",
+           "|---|---|---|---|---|---:|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        code = {"engine": "taichi-soft", "numpy": "numpy", "warp": "Warp"}[r["kind"]]
+        code = {"engine": "taichi-soft", "run": "taichi-soft via run", "yardstick": "yardstick", "numpy": "numpy",
+                "warp": "Warp"}[r["kind"]]
         if "error" in r:
             reason = r["error"].strip().splitlines()[-1][:200] if r["error"].strip() else "failed"
-            out.append(f"| {r['group']} | {code} | {r['arch']} | {r['precision']} | | | | not run: {reason} | | | | |")
+            out.append(f"| {r['group']} | {code} | {r['arch']} | {r['precision']} | | | | not run: {reason} | | | | | |")
             continue
         fm = "-" if r.get("fast_math") is None else ("on" if r["fast_math"] else "off")
-        threads = r["threads"] if r.get("threads") else ("all" if r["kind"] == "engine" else "1" if r["kind"] == "warp" else "-")
+        threads = r["threads"] if r.get("threads") else (
+            "all" if r["kind"] in ("engine", "run", "yardstick") else "1" if r["kind"] == "warp" else "-")
         out.append(f"| {r['group']} | {code} | {r['arch']} | {r['precision']} | {fm} | {threads} | {r['mode'] or '-'} | "
-                   f"{r['steps_per_s']:,.0f} | {r['ns_per_spring']:.2f} | {r['spread']:.0%} | "
+                   f"{r['steps_per_s']:,.0f} | {r['ns_per_spring']:.2f} | {_fmt(r.get('ns_per_eval'), '.2f')} | "
+                   f"{r['spread']:.0%} | "
                    f"{r['steps_per_cpu_s']:,.0f} | {r['max_abs_diff']:.1e} |")
     ratios = []
     for label, num, den, goal in GOALS:

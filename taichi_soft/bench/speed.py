@@ -42,6 +42,7 @@ def measure(integrator: str, n: int, mode: str = "auto", chunk: int | None = Non
     return {
         "integrator": integrator, "n": n, "particles": n**3, "springs": sim.model.n_springs, "mode": "serial" if sim.integrator._serial() else "parallel",
         "forces": sim.integrator.forces.strategy if sim.integrator.forces else "-",
+        "row_width": sim.integrator.forces.rows.width if sim.integrator.forces and sim.integrator.forces.rows else 0,
         "chunk": chunk, "repeats": len(times), "median_s": med, "steps_per_s": chunk / med,
         "ns_per_particle_step": med / chunk / n**3 * 1e9, "realtime_factor": chunk * sim.dt / med,
         "diverged": sim.diverged,
@@ -162,15 +163,15 @@ def median_kernel_seconds(kernel, repeats: int) -> float:
     return statistics.median(times)
 
 
-def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: str) -> int:
+def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: str, row_width: int = 0) -> int:
     """Compulsory memory traffic [bytes] of one semi-implicit Euler step (each array touched once).
 
     Particles: read x, v; write x, v; the force sum (scatter: written by the spring pass, read
     and cleared by the particle pass; per_spring, gather: the particle pass's own sum, free);
     inverse mass. Per spring: (k, kd). ``scatter``: ends (2 i32), rest length.
     ``per_spring``: ends, rest length, the spring force written and read; adjacency: 1 i32 per
-    spring end plus offsets and splits. ``gather``: per adjacency entry the other end (i32),
-    rest length and (k, kd), plus offsets.
+    spring end plus offsets and splits. ``gather``: per slot of its padded rows (``row_width``
+    per particle, rows.py) the other end (i32), rest length and (k, kd).
     """
     vec = 3 * real_bytes
     particles = n_particles * (4 * vec + real_bytes)
@@ -179,7 +180,7 @@ def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: 
     if strategy == "per_spring":
         springs = n_springs * (8 + 3 * real_bytes + 2 * vec) + 2 * n_springs * 4 + 2 * n_particles * 4
     else:
-        springs = 2 * n_springs * (4 + 3 * real_bytes) + n_particles * 4
+        springs = n_particles * row_width * (4 + 3 * real_bytes)
     return particles + springs
 
 
@@ -269,6 +270,7 @@ def kernel_profile(integrator: str, n: int, steps: int = 50) -> list[dict]:
 # round after round (one running at a time), so slow drifts of the machine's load hit every
 # configuration alike and the ratios come from one run.
 REFERENCE_SCENE = ["terrain.kind=none", "body.0.initial_stretch=[1.05, 0.97, 1.0]"]
+RUN_FPS = 30  # output frames per second of the "run" rows (the scene files' default)
 REPEAT_SECONDS = 0.25  # work per timed repeat
 OVERLAP_TASK_MS = 2.0  # task length of the overlap probe taken beside multi-threaded repeats
 
@@ -291,6 +293,9 @@ def equal_settings_specs(sizes=(10, 40), scaling_sizes=(40, 80), archs=("cpu",))
             for fm in (False, True):
                 specs.append({"group": f"n{n}", "kind": "engine", "arch": "cpu", "precision": precision,
                               "fast_math": fm, "threads": None, "n": n})
+            for kind in ("run", "yardstick"):  # the user's path; the plain Taichi kernel
+                specs.append({"group": f"n{n}", "kind": kind, "arch": "cpu", "precision": precision,
+                              "fast_math": True, "threads": None, "n": n})
             specs.append({"group": f"n{n}", "kind": "numpy", "arch": "cpu", "precision": precision, "n": n})
             specs.append({"group": f"n{n}", "kind": "warp", "arch": "cpu", "precision": precision,
                           "fast_math": True, "n": n})
@@ -305,6 +310,9 @@ def equal_settings_specs(sizes=(10, 40), scaling_sizes=(40, 80), archs=("cpu",))
             for threads in (1, 2):
                 specs.append({"group": f"threads_n{n}", "kind": "engine", "arch": "cpu", "precision": precision,
                               "fast_math": True, "threads": threads, "n": n})
+                if precision == "f32":
+                    specs.append({"group": f"threads_n{n}", "kind": "yardstick", "arch": "cpu",
+                                  "precision": precision, "fast_math": True, "threads": threads, "n": n})
     return specs
 
 
@@ -320,21 +328,36 @@ class _Stepper:
         init_kw = {}
         if spec.get("threads"):
             init_kw["cpu_max_num_threads"] = int(spec["threads"])
-        if kind == "engine":
+        if kind in ("engine", "run", "yardstick"):
             runtime.init(spec["arch"], precision, fast_math=spec["fast_math"], **init_kw)
         else:  # the model (numpy arrays, spring parameters) comes from the engine's builder
             runtime.init("cpu", precision)
-        scene = load_scene("plane", [f"body.0.n={spec['n']}", *REFERENCE_SCENE])
+        # "run": the user's path, Simulation.run on the plane terrain (as `run` without a video)
+        sets = REFERENCE_SCENE[1:] if kind == "run" else REFERENCE_SCENE
+        scene = load_scene("plane", [f"body.0.n={spec['n']}", *sets])
         self.sim = Simulation(scene, integrator="semi_implicit_euler")
         self.springs = self.sim.model.n_springs
+        self.evals = self.springs  # spring evaluations per step (a gather evaluates each twice)
         model, x0, v0, dt = self.sim.model, self.sim.model.x0_np, self.sim.model.v0_np, self.sim.dt
         real = np.float64 if precision == "f64" else np.float32
         self.kind = kind
         self.mode = ""
-        if kind == "engine":
+        if kind in ("engine", "run"):
             self.reset, self.advance, self.sync = self.sim.reset, self.sim.advance, ti.sync
+            if kind == "run":
+                self.advance = lambda k: self.sim.run(k * dt, RUN_FPS, progress=lambda done, total, s: None).steps
             self.x = lambda: self.sim.state.x.to_numpy()
-            self.mode = ("serial" if self.sim.integrator._serial() else "parallel") + f", {self.sim.integrator.forces.strategy}"
+            forces = self.sim.integrator.forces.strategy
+            self.mode = ("serial" if self.sim.integrator._serial() else "parallel") + f", {forces}"
+            if forces == "gather":
+                self.evals = 2 * self.springs
+        elif kind == "yardstick":
+            from .references import YardstickStepper
+
+            ys = YardstickStepper(model, x0, v0, dt)
+            self.reset, self.advance, self.sync = (lambda: ys.set(x0, v0)), ys.step, ti.sync
+            self.x = lambda: ys.numpy()[0]
+            self.mode, self.evals = "parallel, CSR gather", 2 * self.springs
         elif kind == "numpy":
             from .references import NumpyStepper
 
@@ -393,7 +416,8 @@ def _worker_main():
     except Exception as e:  # noqa: BLE001 - reported to the coordinator, which reports it
         print(json.dumps({"error": f"{type(e).__name__}: {e}"}), file=out, flush=True)
         return
-    print(json.dumps({"chunk": chunk, "springs": st.springs, "mode": st.mode}), file=out, flush=True)
+    print(json.dumps({"chunk": chunk, "springs": st.springs, "evals": st.evals, "mode": st.mode}), file=out,
+                     flush=True)
     for line in sys.stdin:
         cmd = line.split()
         if not cmd or cmd[0] == "quit":
@@ -506,6 +530,7 @@ def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, pr
                     chunk = w.info["chunk"]
                     row.update(mode=w.info["mode"], springs=w.info["springs"], chunk=chunk, repeats=len(ts),
                                steps_per_s=chunk / med, ns_per_spring=med / chunk / w.info["springs"] * 1e9,
+                               ns_per_eval=med / chunk / w.info["evals"] * 1e9,
                                steps_per_cpu_s=chunk / max(statistics.median(cpu[id(w)]), 1e-9),
                                spread=(max(ts) - min(ts)) / med,
                                max_abs_diff=float(np.abs(finals[id(w)] - ref).max()))
@@ -523,7 +548,7 @@ def equal_settings(specs: list[dict], rounds: int = 5, check_steps: int = 20, pr
 
 def _multithreaded(spec: dict) -> bool:
     """A worker whose steps run on several CPU threads (the thread-scaling rows at 2 threads)."""
-    return spec["kind"] == "engine" and spec["arch"] == "cpu" and (spec.get("threads") or 0) > 1
+    return spec["kind"] in ("engine", "yardstick") and spec["arch"] == "cpu" and (spec.get("threads") or 0) > 1
 
 
 def find_row(rows, **key):

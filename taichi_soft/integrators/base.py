@@ -25,7 +25,7 @@ import numpy as np
 import taichi as ti
 
 from ..errors import UserError
-from ..forces import ForceEvaluator
+from ..forces import ForceEvaluator, auto_strategy
 
 # Parallel launches win above this many particles on a CPU. Implicit solvers (many launches per
 # step in parallel mode): 4096. Explicit methods, semi-implicit Euler on the 2-core VM, f64,
@@ -34,11 +34,6 @@ from ..forces import ForceEvaluator
 SERIAL_MAX_PARTICLES = 4096
 SERIAL_MAX_PARTICLES_EXPLICIT = 20000
 NOT_DIVERGED = 2**31 - 1
-# Implicit solvers iterate on positions: in f32 each step's velocity (x_{n+1} - x_n)/dt inherits
-# the rounding of x (about 1e-6 m at 10 m), which matters below this step [s]. Measured, free fall
-# for 0.6 s: velocity 1.9 % (implicit_euler) and 2.3 % (fast_mass_spring) slow at dt = 1 ms,
-# 0.01 % at 1/60 s; exact in f64 (docs/implicit.md, "Precision").
-F32_IMPLICIT_MIN_DT = 0.005
 
 
 @ti.data_oriented
@@ -107,8 +102,6 @@ class Integrator:
         if n_steps <= 0 or self.diverged:
             return 0
         start = self._step_counter
-        if self.forces is not None:
-            self.forces.refresh()
         x, v = state.x, state.v
         if self.ping_pong:
             xo, vo = self._xo, self._vo
@@ -144,13 +137,6 @@ class Integrator:
         """One step; returns False if it diverged."""
         return self.advance(state, dt, 1) == 1 and not self.diverged
 
-    def precision_note(self, dt: float) -> str | None:
-        """One line on what this integrator loses at step ``dt`` [s] in the run's precision, or None."""
-        if self.implicit and self.model.real == np.float32 and dt < F32_IMPLICIT_MIN_DT:
-            return (f"{self.name} in f32 at dt = {dt:g} s loses velocity to the rounding of positions "
-                    f"(free fall 2 % slow after 0.6 s at dt = 1 ms); use --precision f64 or dt >= {F32_IMPLICIT_MIN_DT:g} s")
-        return None
-
     @property
     def diverged(self) -> bool:
         return int(self.diverged_step[None]) != NOT_DIVERGED
@@ -168,10 +154,8 @@ class Integrator:
     def _force_strategy(self) -> str:
         if self.options["forces"] != "auto":
             return self.options["forces"]
-        # CPU: scatter measured fastest at every size in both launch modes (docs/benchmarks).
-        # GPU: the slab passes would run one slab per thread; a gather keeps every thread busy.
-        on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
-        return "scatter" if on_cpu else "gather"
+        cfg = ti.lang.impl.current_cfg()
+        return auto_strategy("cpu" if cfg.arch in (ti.x64, ti.arm64) else "gpu", cfg.fast_math)
 
     def _serial(self) -> bool:
         if self.mode == "auto":
@@ -181,6 +165,7 @@ class Integrator:
 
     @ti.kernel
     def _advance_serial(self, x: ti.template(), v: ti.template(), dt: float, start: ti.i32, n_steps: ti.i32):
+        self._refresh()
         ti.loop_config(serialize=True)
         for s in range(n_steps):
             self._step_body(x, v, dt, start + s)
@@ -190,12 +175,14 @@ class Integrator:
 
     @ti.kernel
     def _advance_parallel(self, x: ti.template(), v: ti.template(), dt: float, step: ti.i32):
+        self._refresh()
         self._step_body(x, v, dt, step)
         self._body_contacts(x, v, dt)
 
     @ti.kernel
     def _advance_serial_pp(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template(), dt: float,
                            start: ti.i32, n_steps: ti.i32):
+        self._refresh()
         ti.loop_config(serialize=True)
         for s in range(n_steps):
             if s % 2 == 0:
@@ -214,8 +201,18 @@ class Integrator:
     @ti.kernel
     def _advance_parallel_pp(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template(),
                              dt: float, step: ti.i32):
+        self._refresh()
         self._step_into(x, v, xo, vo, dt, step)
         self._body_contacts(xo, vo, dt)
+
+    @ti.func
+    def _refresh(self):
+        """Explicit methods: bring the force pass's copies of k, kd up to date (forces.refresh)."""
+        if ti.static(self._has_forces()):
+            self.forces.refresh()
+
+    def _has_forces(self) -> bool:
+        return self.forces is not None
 
     @ti.kernel
     def _copy_state(self, x: ti.template(), v: ti.template(), xo: ti.template(), vo: ti.template()):

@@ -3,7 +3,10 @@
 camera.py    scene / default cameras, GGUI's view and projection matrices (numpy)
 meshes.py    terrain meshes matching the collision shapes; bodies' surface mesh on the device
 window.py    opening a GGUI window (hidden or shown, one-line error without Vulkan), image readback
-renderer.py  the hidden GGUI window and what one simulation draws into it; camera and lights
+renderer.py  what one simulation draws (SimulationView); the GGUI and the Taichi renderer
+lighting.py  the light rig and GGUI's Lambertian lighting evaluated per vertex (a Taichi kernel)
+raster.py    the Taichi triangle rasterizer with a depth buffer (the CPU path, no Vulkan)
+choose.py    --renderer auto|ggui|taichi; vkinfo.py: which Vulkan devices there are
 overlay.py   text drawn onto frames with Pillow
 outputs.py   video files, PNG folders, the background writer thread; all written atomically
 export.py    per-frame surface meshes as PLY or OBJ

@@ -1,27 +1,132 @@
-"""Rendering cost per frame: ``python -m taichi_soft.render.benchmark [--resolution 1280x720]``.
+"""Rendering cost per frame, stage by stage: ``python -m taichi_soft.render.benchmark``.
 
-Times each stage of a recorded frame on the default scene (a 1000-particle cube on the plane),
-after a warm-up (Taichi compiles kernels and GGUI builds pipelines on first use), as medians
-over repeats: surface update + draw + GPU readback, the uint8 conversion, the text overlay,
-PNG writing and H.264 encoding (fed synchronously here, so its cost shows; in a run it happens on
-the writer thread and in ffmpeg's own process).
+    python -m taichi_soft.render.benchmark [--scene plane,sphere] [--resolution 640x360,1280x720]
+                                           [--renderer ggui,taichi] [--repeats 15]
+
+For each scene, resolution and renderer: one frame of the scene mid-motion (1.2 s in), each
+stage timed alone after a warm-up (Taichi compiles kernels and GGUI builds pipelines on first
+use), the stages in turn round after round, medians over the rounds, wall clock and CPU time of
+the whole process (all its threads: Taichi's, lavapipe's; the CPU figure moves less when other
+programs share the cores, and a frame whose CPU time is under a budget fits that budget in wall
+time on one idle core):
+
+- update + lighting: surface positions and normals, lighting per vertex (``lighting.shade``)
+- draw: GGUI draw and read-back (float32; GGUI draws inside its read-back call), also with GGUI
+  lighting every pixel (the look before per-vertex lighting, for comparison), or the Taichi
+  rasterizer's triangle pass
+- read-back: GGUI's read-back of an empty frame (its fixed cost: clear, draw nothing, copy), or
+  the Taichi rasterizer's resolve pass (already uint8: no conversion follows)
+- conversion: GGUI's float32 image to uint8 RGB (``readback.py``)
+- overlay (Pillow), encode (H.264: writing the frame to ffmpeg's pipe; ffmpeg encodes in its own
+  process), simulation of one 30 fps frame (33 steps)
+- whole frame: what a run's main thread does per frame (render: update, light, draw, read-back,
+  conversion), then **the pipeline**: 30 frames of a real run's loop (simulate 1/30 s, render,
+  hand over to the writer thread for overlay and encoding), wall time per frame, and the overlap
+  achieved = (sum of the stages) / (pipeline time per frame).
 """
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
 
-def _median_ms(fn, repeats: int) -> float:
-    samples = []
+def _interleaved_ms(stages: dict, repeats: int, warmup: int = 3) -> dict:
+    """{name: (wall, process CPU) medians in ms} of each ``stages[name]()``, the stages timed in
+    turn, round after round (a load that drifts hits all of them alike); ``ti.sync()`` before
+    each clock read."""
+    import taichi as ti
+
+    for fn in stages.values():
+        for _ in range(warmup):
+            fn()
+    samples = {name: ([], []) for name in stages}
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        samples.append(1000 * (time.perf_counter() - t0))
-    return statistics.median(samples)
+        for name, fn in stages.items():
+            ti.sync()
+            t0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            ti.sync()
+            samples[name][0].append(1000 * (time.perf_counter() - t0))
+            samples[name][1].append(1000 * (time.process_time() - c0))
+    return {name: (statistics.median(w), statistics.median(c)) for name, (w, c) in samples.items()}
+
+
+def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
+    """{stage: (wall ms, cpu ms)} for one renderer on one view."""
+    from . import overlay
+    from .lighting import light_rig
+    from .outputs import BackgroundWriter, VideoFile
+    from .renderer import BACKGROUND, apply_camera, draw_view
+
+    image = renderer.render(view, cam)
+    lines = info.lines(sim.time, sim.measure()["total_energy"])
+    stages = {"update + lighting": lambda: (view.update(), view.light(light_rig(cam)))}
+    if kind == "ggui":
+        def draw():
+            apply_camera(renderer.scene, renderer.camera, cam)
+            draw_view(renderer.canvas, renderer.scene, view)
+            renderer.window.get_image_buffer_as_numpy()
+
+        def empty_readback():
+            apply_camera(renderer.scene, renderer.camera, cam)
+            renderer.canvas.set_background_color(BACKGROUND)
+            renderer.canvas.scene(renderer.scene)
+            renderer.window.get_image_buffer_as_numpy()
+
+        buf = renderer.window.get_image_buffer_as_numpy()
+        from .readback import float_image_to_rgb8
+        import numpy as np
+
+        rgb = np.empty((height, width, 3), np.uint8)
+        def draw_per_pixel():
+            view.per_pixel_lighting = True
+            draw()
+            view.per_pixel_lighting = False
+
+        stages["draw + read-back (GGUI)"] = draw
+        stages["  the same, lit per pixel (old)"] = draw_per_pixel
+        stages["read-back alone (empty frame)"] = empty_readback
+        stages["conversion to uint8"] = lambda: float_image_to_rgb8(buf, rgb)
+    else:
+        raster = renderer.raster
+
+        def draw():
+            raster.begin(cam, BACKGROUND)
+            for m in view.lit_meshes():
+                raster.draw(m.vertices, m.indices, m.colors, cull=m.closed)
+
+        stages["draw (triangle pass)"] = lambda: (draw(), raster.finish())  # minus the resolve, below
+        stages["read-back (resolve to uint8)"] = raster.finish
+    video = VideoFile(Path(tmp) / f"bench-{kind}.mp4", 30.0, (width, height))
+    stages["overlay (Pillow)"] = lambda: overlay.draw_info(image.copy(), lines)
+    stages["encode (to ffmpeg's pipe)"] = lambda: video.add(image, 0)
+    stages["whole frame (render)"] = lambda: renderer.render(view, cam)
+    stages["simulation (1/30 s, 33 steps)"] = lambda: sim.advance(33)
+    times = _interleaved_ms(stages, repeats)
+    if kind == "taichi":  # the triangle pass was timed with a resolve after it (keys must be reset)
+        d, r = times["draw (triangle pass)"], times["read-back (resolve to uint8)"]
+        times["draw (triangle pass)"] = (d[0] - r[0], d[1] - r[1])
+
+    # The pipeline as in a run: main thread simulates and renders, the writer overlays and encodes.
+    def write(item):
+        img = item.copy()
+        overlay.draw_info(img, lines)
+        video.add(img, 0)
+
+    frames = 30
+    writer = BackgroundWriter(write)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(frames):
+        sim.advance(33)
+        writer.submit(renderer.render(view, cam))
+    writer.close()
+    times["pipeline, per frame"] = (1000 * (time.perf_counter() - t0) / frames, 1000 * (time.process_time() - c0) / frames)
+    video.abort()
+    return times
 
 
 def main(argv=None) -> int:
@@ -30,62 +135,42 @@ def main(argv=None) -> int:
     from ..simulation import Simulation
     from . import overlay
     from .camera import scene_camera
-    from .outputs import PngFrames, VideoFile
-    from .renderer import Renderer, SimulationView, apply_camera, draw_view
+    from .renderer import Renderer, SimulationView, TaichiRenderer
 
     p = argparse.ArgumentParser(prog="python -m taichi_soft.render.benchmark", description=__doc__.splitlines()[0])
-    p.add_argument("--scene", default="plane")
-    p.add_argument("--resolution", default="1280x720")
-    p.add_argument("--repeats", type=int, default=30)
+    p.add_argument("--scene", default="plane", help="comma-separated scene names (default: plane)")
+    p.add_argument("--resolution", default="1280x720", help="comma-separated WxH (default: 1280x720)")
+    p.add_argument("--renderer", default="ggui,taichi", help="comma-separated: ggui, taichi (default: both)")
+    p.add_argument("--repeats", type=int, default=15)
     args = p.parse_args(argv)
-    width, height = parse_resolution(args.resolution)
-    init("cpu", "f64")
-    sim = Simulation(load_scene(args.scene))
-    renderer = Renderer(width, height)
-    view = SimulationView(sim)
-    cam = scene_camera(sim.scene.data, width / height, top_margin=overlay.INFO_MARGIN)
-    info = overlay.run_info(sim)
-    sim.advance(1200)  # mid-bounce: a deformed cube in frame
-    image = renderer.render(view, cam)
-    lines = info.lines(sim.time, sim.measure()["total_energy"])
-
-    def render_only():
-        view.update()
-        apply_camera(renderer.scene, renderer.camera, cam)
-        draw_view(renderer.canvas, renderer.scene, view)
-        renderer.window.get_image_buffer_as_numpy()
-
-    def readback():
-        renderer.window.get_image_buffer_as_numpy()
-
-    def convert():
-        renderer.read_image()
-
-    def with_overlay():
-        overlay.draw_info(image.copy(), lines)
-
-    stages = {}
+    sizes = [parse_resolution(r) for r in args.resolution.split(",")]
+    kinds = args.renderer.split(",")
+    if set(kinds) - {"ggui", "taichi"}:
+        p.error(f"--renderer: choose from ggui, taichi, got {args.renderer}")
+    init("cpu", "f64", fast_math=True)  # as the command line runs
+    print(f"load average before: {', '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores)")
     with tempfile.TemporaryDirectory() as tmp:
-        video = VideoFile(Path(tmp) / "bench.mp4", 30.0, (width, height))
-        pngs = PngFrames(Path(tmp) / "frames")
-        counter = iter(range(10**9))
-        for name, fn in (("render (update, draw, readback)", render_only), ("readback alone (GGUI, float32)", readback),
-                         ("readback + uint8 conversion", convert),
-                         ("measure (energies)", sim.measure), ("overlay (Pillow)", with_overlay),
-                         ("PNG write", lambda: pngs.add(image, next(counter))),
-                         ("H.264 encode (synchronous)", lambda: video.add(image, 0)),
-                         ("whole frame as in a run", lambda: renderer.render(view, cam))):
-            for _ in range(3):
-                fn()  # warm-up
-            stages[name] = _median_ms(fn, args.repeats)
-        video.abort()
-        pngs.abort()
-    step_ms = _median_ms(lambda: sim.advance(33), 5)  # one 30 fps frame of simulation at dt = 1 ms
-    renderer.close()
-    print(f"{args.scene} at {width}x{height}, medians over {args.repeats} repeats:")
-    for name, ms in stages.items():
-        print(f"  {name:34s} {ms:8.2f} ms")
-    print(f"  {'simulation, 1/30 s (33 steps)':34s} {step_ms:8.2f} ms  ({sim.integrator_name})")
+        for name in args.scene.split(","):
+            for width, height in sizes:
+                for kind in kinds:
+                    sim = Simulation(load_scene(name))
+                    sim.advance(1200)  # mid-motion: a deformed body in frame
+                    renderer = (Renderer if kind == "ggui" else TaichiRenderer)(width, height)
+                    view = SimulationView(sim)
+                    cam = scene_camera(sim.scene.data, width / height, top_margin=overlay.INFO_MARGIN)
+                    cam = cam.following(sim.measure()["center_of_mass"])
+                    times = _stages(renderer, kind, view, cam, sim, overlay.run_info(sim), width, height, args.repeats, tmp)
+                    renderer.close()
+                    stage_sum = sum(w for k, (w, _) in times.items()
+                                    if k not in ("whole frame (render)", "pipeline, per frame")
+                                    and not k.startswith(("read-back alone", "  the same")))
+                    print(f"\n{name} at {width}x{height}, {kind}, medians of {args.repeats} (wall / CPU of all threads):")
+                    for stage, (wall, cpu) in times.items():
+                        print(f"  {stage:32s} {wall:8.2f} ms {cpu:8.2f} ms")
+                    pipe = times["pipeline, per frame"][0]
+                    print(f"  overlap: stages sum to {stage_sum:.1f} ms, the pipeline takes {pipe:.1f} ms a frame "
+                          f"({stage_sum / pipe:.2f}x)")
+    print(f"\nload average after: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
     return 0
 
 

@@ -52,7 +52,8 @@ class Tile:
     view: object
     image: np.ndarray | None = None  # last good frame, unlabelled
     time: float = 0.0  # s, of ``image``
-    energy: float = float("nan")  # J, of ``image``
+    energy: float = float("nan")  # J, of ``image``: the total energy's change since t = 0
+    energy0: float | None = None  # J, total energy at t = 0
     diverged_at: float | None = None
 
 
@@ -64,7 +65,7 @@ class TileResult:
     diverged_at: float | None
     diverged_step: int | None
     final_time: float
-    final_energy: float
+    final_energy: float  # J, the total energy's change since t = 0
 
 
 class Comparison(FrameJob):
@@ -77,13 +78,14 @@ class Comparison(FrameJob):
     def __init__(self, scene, integrators: list[str], options, dt: float | None = None):
         from ..simulation import Simulation
         from .camera import scene_camera
-        from .renderer import Renderer, SimulationView
+        from .choose import make_renderer
+        from .renderer import SimulationView
 
         self.scene, self.options = scene, options
         width, height = options.resolution
         self.cols, self.rows = grid_shape(len(integrators), width, height)
         self.tile_w, self.tile_h = width // self.cols, height // self.rows
-        self.renderer = Renderer(self.tile_w, self.tile_h)
+        self.renderer = make_renderer(self.tile_w, self.tile_h, options.renderer, options.particles or options.springs)
         self.sinks, self.writer = [], None
         try:
             self.tiles = []
@@ -127,7 +129,9 @@ class Comparison(FrameJob):
             return
         m = sim.measure()
         tile.image = self.renderer.render(tile.view, self.camera.following(m["center_of_mass"]))
-        tile.time, tile.energy = sim.time, m["total_energy"]
+        if tile.energy0 is None:
+            tile.energy0 = m["total_energy"]
+        tile.time, tile.energy = sim.time, m["total_energy"] - tile.energy0
 
     # -- worker thread -----------------------------------------------------------------------
     def _compose(self, item):
@@ -140,7 +144,7 @@ class Comparison(FrameJob):
             row, col = divmod(k, self.cols)
             cell = mosaic[row * th:(row + 1) * th, col * tw:(col + 1) * tw]
             cell[:] = image
-            subtitle = f"dt = {self.dt:g} s | t = {time:.3f} s | E = {overlay.energy_text(energy)}"
+            subtitle = f"dt = {self.dt:g} s | t = {time:.3f} s | {overlay.ENERGY_LABEL} = {overlay.energy_text(energy)}"
             if diverged_at is not None:
                 overlay.dim(cell)
                 overlay.draw_banner(cell, f"diverged at t = {diverged_at:.4f} s", size=max(10, th // 12), y=0.45)

@@ -29,6 +29,8 @@ class TriMesh:
     triangles [m, 3] vertex indices wound counter-clockwise seen from the normal's side.
 
     GGUI culls no faces; ``two_sided`` lights a face seen from behind with its normal flipped.
+    ``closed``: the surface encloses a volume, so faces seen from behind are always hidden (the
+    Taichi rasterizer skips them).
     """
 
     vertices: np.ndarray
@@ -36,6 +38,7 @@ class TriMesh:
     colors: np.ndarray
     triangles: np.ndarray
     two_sided: bool = False
+    closed: bool = False
 
 
 def _checker_grid(position, normal, nu: int, nv: int, colors, tile: int = 1, two_sided=False) -> TriMesh:
@@ -103,7 +106,9 @@ def _sphere_patch(center, radius, lat_lo, lat_hi, n_lon, n_lat, inward, colors, 
 def sphere_mesh(center, radius) -> TriMesh:
     """The whole ball, seen from outside. 96 x 48 cells: the flat facets sag at most
     r (1 - cos(pi / 96)) = 0.05 % of r below the true sphere the bodies rest on."""
-    return _sphere_patch(center, radius, -math.pi / 2, math.pi / 2, 96, 48, False, CHECKER, tile=4)
+    ball = _sphere_patch(center, radius, -math.pi / 2, math.pi / 2, 96, 48, False, CHECKER, tile=4)
+    ball.closed = True
+    return ball
 
 
 def bowl_mesh(center, radius) -> TriMesh:
@@ -146,6 +151,23 @@ def terrain_meshes(kind: str, params: dict, scene_data: dict) -> list[TriMesh]:
 
 
 # -- bodies -------------------------------------------------------------------------------------
+@ti.func
+def smooth_normals(vertices: ti.template(), normals: ti.template(), indices: ti.template()):
+    """Unit vertex normals of the triangle mesh (``vertices``, flat triangle corner ``indices``)
+    into ``normals``, which the caller has zeroed: each the area-weighted mean of its triangles'
+    normals (the unnormalised cross product is twice the area). Call at a kernel's top level."""
+    for t in range(indices.shape[0] // 3):
+        a, b, c = indices[3 * t], indices[3 * t + 1], indices[3 * t + 2]
+        n = (vertices[b] - vertices[a]).cross(vertices[c] - vertices[a])
+        normals[a] += n  # atomic: triangles sharing a vertex add concurrently
+        normals[b] += n
+        normals[c] += n
+    for v in range(normals.shape[0]):
+        length = normals[v].norm()
+        if length > 0:
+            normals[v] /= length
+
+
 @ti.data_oriented
 class SurfaceMesh:
     """Every body's outer surface on the device, in f32 (what GGUI draws and exporters write).
@@ -187,16 +209,7 @@ class SurfaceMesh:
         for v in range(self.n_vertices):
             self.vertices[v] = ti.cast(x[self.vertex_particle[v]], ti.f32)
             self.normals[v] = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
-        for t in range(self.n_triangles):
-            a, b, c = self.indices[3 * t], self.indices[3 * t + 1], self.indices[3 * t + 2]
-            n = (self.vertices[b] - self.vertices[a]).cross(self.vertices[c] - self.vertices[a])
-            self.normals[a] += n  # atomic: triangles sharing a vertex add concurrently
-            self.normals[b] += n
-            self.normals[c] += n
-        for v in range(self.n_vertices):
-            length = self.normals[v].norm()
-            if length > 0:
-                self.normals[v] /= length
+        smooth_normals(self.vertices, self.normals, self.indices)
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:
         """(vertices [n_vertices, 3] m, normals [n_vertices, 3]) as float32 copies."""

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import OutputError, UserError
-from ..outfiles import fsync_file, reserve_temp
+from ..outfiles import fsync_file, reserve_dir, reserve_temp
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -103,7 +103,7 @@ class StagedDir:
     def __init__(self, target: Path, prefix: str, suffix: str):
         self.target, self.prefix, self.suffix = Path(target), prefix, suffix
         self.target.parent.mkdir(parents=True, exist_ok=True)
-        self.staging = Path(tempfile.mkdtemp(dir=self.target.parent, prefix=f".{self.target.name}."))
+        self.staging = reserve_dir(self.target)
 
     def file(self, index: int) -> Path:
         return self.staging / f"{self.prefix}_{index:05d}{self.suffix}"

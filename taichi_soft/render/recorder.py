@@ -24,6 +24,8 @@ class RenderOptions:
     frames: Path | None = None
     mesh_dir: Path | None = None
     mesh_format: str = "ply"
+    usd: Path | None = None  # --export-usd (caches.UsdCache)
+    pc2_dir: Path | None = None  # --export-pc2 (caches.Pc2Cache)
     fps: float = 30.0  # output frames per simulated second
     resolution: tuple = (1280, 720)  # (width, height) pixels
     surface: bool = True
@@ -31,6 +33,7 @@ class RenderOptions:
     springs: bool = False
     follow: bool | None = None  # None: the terrain's default
     overlay: bool = True
+    renderer: str = "auto"  # "auto", "ggui" or "taichi" (render.choose)
 
     @property
     def needs_renderer(self) -> bool:
@@ -38,7 +41,12 @@ class RenderOptions:
 
     @property
     def any(self) -> bool:
-        return self.needs_renderer or self.mesh_dir is not None
+        return self.needs_renderer or self.needs_meshes
+
+    @property
+    def needs_meshes(self) -> bool:
+        """Whether the bodies' surfaces are read back each frame (mesh files, animation caches)."""
+        return self.mesh_dir is not None or self.usd is not None or self.pc2_dir is not None
 
 
 class FrameRecorder(FrameJob):
@@ -50,20 +58,21 @@ class FrameRecorder(FrameJob):
 
     def __init__(self, sim, options: RenderOptions, progress=None):
         from .camera import scene_camera
-        from .meshes import SurfaceMesh
+        from .embedded import body_surface
 
         self.sim, self.options, self.progress = sim, options, progress
         width, height = options.resolution
         self.renderer = self.view = self.writer = None
         self.image_sinks, self.mesh_sinks = [], []
         if options.needs_renderer:
-            from .renderer import Renderer, SimulationView
+            from .choose import make_renderer
+            from .renderer import SimulationView
 
-            self.renderer = Renderer(width, height)
+            self.renderer = make_renderer(width, height, options.renderer, options.particles or options.springs)
         try:
             if self.renderer is not None:
                 self.view = SimulationView(sim, options.surface, options.particles, options.springs)
-            self.surface = self.view.surface if self.view else SurfaceMesh(sim.model)
+            self.surface = self.view.surface if self.view else body_surface(sim.model)
             self.camera = scene_camera(sim.scene.data, width / height, options.follow,
                                        overlay.INFO_MARGIN if options.overlay else 0.0)
             self.info = overlay.run_info(sim)
@@ -72,11 +81,23 @@ class FrameRecorder(FrameJob):
                 from .export import MeshFrames
 
                 self.mesh_sinks.append(MeshFrames(options.mesh_dir, options.mesh_format, self.surface))
+            if options.usd:
+                from .caches import UsdCache
+                from .meshes import terrain_meshes
+
+                terrain = sim.terrain
+                self.mesh_sinks.append(UsdCache(options.usd, self.surface,
+                                                terrain_meshes(terrain.kind, terrain.params(), sim.scene.data), options.fps))
+            if options.pc2_dir:
+                from .caches import Pc2Cache
+
+                self.mesh_sinks.append(Pc2Cache(options.pc2_dir, self.surface))
             self.writer = BackgroundWriter(self._write)
         except BaseException:
             self.abort()
             raise
         self.frames = 0
+        self.energy0: float | None = None  # total energy [J] at the first frame, the overlay's zero
         self.last = None  # (image, overlay lines) of the last good frame
         self.diverged_at: float | None = None
 
@@ -87,13 +108,15 @@ class FrameRecorder(FrameJob):
             self.diverged_at = sim.diverged_at
             return
         m = sim.measure()
-        lines = self.info.lines(sim.time, m["total_energy"])
+        if self.energy0 is None:  # the first frame is the start (t = 0)
+            self.energy0 = m["total_energy"]
+        lines = self.info.lines(sim.time, m["total_energy"] - self.energy0)
         image = mesh = None
         if self.renderer is not None:
             image = self.renderer.render(self.view, self.camera.following(m["center_of_mass"]))
         else:
             self.surface.update(sim.state.x)
-        if self.options.mesh_dir:
+        if self.options.needs_meshes:
             mesh = self.surface.numpy()
         self.writer.submit((self.frames, image, lines, None, mesh, sim.time))
         self.last = (image, lines)

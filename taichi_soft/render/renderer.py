@@ -1,10 +1,14 @@
-"""Offscreen GGUI rendering: one hidden window, any number of simulations drawn into it.
+"""Offscreen rendering: any number of simulations drawn by one renderer.
 
-``Renderer(width, height)`` owns the window (Taichi must be initialised first; GGUI brings up
-its own Vulkan device, also with ``arch=cpu``). ``SimulationView(sim)`` holds what one
-simulation draws: its surface mesh, terrain meshes and optional particles and springs.
-``renderer.render(view, camera)`` returns the frame as uint8 RGB [height, width, 3].
+``SimulationView(sim)`` holds what one simulation draws: its surface mesh, terrain meshes and
+optional particles and springs, lit per vertex (``lighting.py``). Two renderers draw views
+(Taichi must be initialised first), both with ``render(view, camera)`` returning the frame as
+uint8 RGB [height, width, 3]: ``Renderer(width, height)`` owns a hidden GGUI window (GGUI brings
+up its own Vulkan device, also with ``arch=cpu``); ``TaichiRenderer(width, height)`` rasterizes
+in Taichi kernels (``raster.py``), surfaces and terrain only. ``choose.make_renderer`` picks one.
 """
+
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
@@ -12,15 +16,15 @@ import taichi as ti
 from ..lattice import SPRING_KINDS
 from ..model import group_kind
 from .camera import CameraSpec
-from .meshes import BODY_COLORS, SurfaceMesh, TriMesh, terrain_meshes
+from .embedded import body_surface
+from .lighting import LightRig, apply_rig_to_ggui, light_rig, shade
+from .meshes import BODY_COLORS, TriMesh, terrain_meshes
 from .window import open_window, window_rgb
 
 BACKGROUND = (0.86, 0.89, 0.93)
 SPRING_COLORS = {"stretch": (0.15, 0.35, 0.95), "shear": (0.10, 0.70, 0.25), "bend": (0.85, 0.15, 0.70)}
 PARTICLE_COLOR = (0.12, 0.12, 0.15)
-AMBIENT = (0.30, 0.30, 0.32)
-KEY_LIGHT = (0.72, 0.70, 0.66)  # warm, above and left of the camera
-FILL_LIGHT = (0.18, 0.20, 0.24)  # cool, from the other side: faces turned away stay readable
+_RIG_ATTR = "_taichi_soft_rig"  # where ``apply_camera`` leaves the light rig on a ti.ui.Scene for ``draw_view``
 
 
 def aim_camera(camera, spec: CameraSpec):
@@ -31,30 +35,28 @@ def aim_camera(camera, spec: CameraSpec):
     camera.fov(spec.fov)
 
 
-def apply_camera(scene, camera, spec: CameraSpec):
+def apply_camera(scene, camera, spec: CameraSpec) -> LightRig:
     """Aim ``camera`` (a ``ti.ui.Camera``) by ``spec``, make it ``scene``'s (a ``ti.ui.Scene``) and
-    light the scene from it: ambient light, a warm key light above and left of the camera and a
-    cool fill light from the other side. Call once per frame, before drawing.
+    light the scene from it (``lighting.light_rig``: ambient, warm key light above and left of the
+    camera, cool fill light). Call once per frame, before ``draw_view``; returns the rig.
 
-    The lights move with the camera, so every scene and every follow shot is lit the same way;
-    their distance from the target is the camera's.
+    The rig is kept with ``scene``: ``draw_view`` lights the vertices with it (per-vertex
+    lighting) or hands it to GGUI (per-pixel, ``SimulationView.per_pixel_lighting``).
     """
     aim_camera(camera, spec)
     scene.set_camera(camera)
-    eye, target = np.asarray(spec.position), np.asarray(spec.lookat)
-    back = eye - target
-    dist = np.linalg.norm(back)
-    right = spec.right()
-    up = np.asarray(spec.up, dtype=np.float64) / np.linalg.norm(spec.up)
-    scene.ambient_light(AMBIENT)
-    scene.point_light(tuple(target + back + dist * (0.9 * up - 0.5 * right)), KEY_LIGHT)
-    scene.point_light(tuple(target + 0.6 * back + dist * (0.8 * right - 0.2 * up)), FILL_LIGHT)
+    rig = light_rig(spec)
+    setattr(scene, _RIG_ATTR, rig)
+    return rig
 
 
 def draw_view(canvas, scene, view: "SimulationView"):
     """Draw ``view`` into ``scene`` and the scene onto ``canvas`` over the ``BACKGROUND`` colour
     (the camera and lights set first, by ``apply_camera``)."""
-    view.draw(scene)
+    rig = getattr(scene, _RIG_ATTR, None)
+    if rig is None:
+        raise RuntimeError("draw_view needs apply_camera(scene, ...) first: it sets the camera and the lights")
+    view.draw(scene, rig)
     canvas.set_background_color(BACKGROUND)
     canvas.scene(scene)
 
@@ -81,23 +83,43 @@ def draw_mesh(scene, identity, vertices, indices, normals, colors, two_sided=Fal
     scene.mesh_instance(vertices, indices, normals, per_vertex_color=colors, two_sided=two_sided, transforms=identity)
 
 
+class LitMesh(NamedTuple):
+    """Fields of a mesh ready to draw: f32 vec3 ``vertices`` [m], i32 triangle corners
+    ``indices``, unit ``normals``, ``colors`` lit per vertex; ``closed``: faces seen from behind
+    are hidden (``TriMesh.closed``)."""
+
+    vertices: object
+    indices: object
+    normals: object
+    colors: object
+    closed: bool
+
+
 class _StaticMesh:
-    """A ``TriMesh`` uploaded once into the f32 fields GGUI draws from."""
+    """A ``TriMesh`` uploaded once into the f32 fields GGUI draws from, with its lit vertex
+    colours (``lit``), relit only when the light rig changes (a fixed camera: once per run)."""
 
     def __init__(self, mesh: TriMesh):
         n = len(mesh.vertices)
         self.vertices = ti.Vector.field(3, ti.f32, n)
         self.normals = ti.Vector.field(3, ti.f32, n)
         self.colors = ti.Vector.field(3, ti.f32, n)
+        self.lit = ti.Vector.field(3, ti.f32, n)
         self.indices = ti.field(ti.i32, mesh.triangles.size)
         self.vertices.from_numpy(mesh.vertices.astype(np.float32))
         self.normals.from_numpy(mesh.normals.astype(np.float32))
         self.colors.from_numpy(mesh.colors.astype(np.float32))
         self.indices.from_numpy(np.ascontiguousarray(mesh.triangles, dtype=np.int32).ravel())
-        self.two_sided = mesh.two_sided
+        self.two_sided, self.closed = mesh.two_sided, mesh.closed
+        self._lit_by = None
 
-    def draw(self, scene, identity):
-        draw_mesh(scene, identity, self.vertices, self.indices, self.normals, self.colors, self.two_sided)
+    def light(self, rig: LightRig):
+        if rig != self._lit_by:
+            shade(self.vertices, self.normals, self.colors, self.lit, rig, self.two_sided)
+            self._lit_by = rig
+
+    def lit_mesh(self) -> "LitMesh":
+        return LitMesh(self.vertices, self.indices, self.normals, self.lit, self.closed)
 
 
 @ti.data_oriented
@@ -111,6 +133,11 @@ class SimulationView:
 
     ``show_surface``, ``show_particles`` and ``show_springs`` (same values as the arguments) can be
     changed between frames; particles and springs can only be shown by a view built with them.
+
+    Lighting (``lighting.py``): meshes are lit per vertex in a Taichi kernel and GGUI only
+    interpolates the colours, which on lavapipe costs about half of GGUI's own per-pixel lighting.
+    ``per_pixel_lighting = True`` hands the lights to GGUI instead (the reference look); so does a
+    frame that shows particles, since GGUI lights its particle spheres itself.
     """
 
     def __init__(self, sim, surface: bool = True, particles: bool = False, springs=False):
@@ -118,12 +145,14 @@ class SimulationView:
         model = sim.model
         self.show_surface, self.show_particles, self.show_springs = surface, particles, springs
         springs = bool(self.show_springs)  # any kind: the index array of every kind is built
-        self.surface = SurfaceMesh(model)
+        self.surface = body_surface(model)  # mesh bodies: their input mesh, embedded (embedded.py)
         self._identity = _identity_transform()
         # One draw call for every body: per-vertex colours, one colour per body.
         self.body_colors = ti.Vector.field(3, ti.f32, self.surface.n_vertices)
         palette = np.asarray(BODY_COLORS, dtype=np.float32)
         self.body_colors.from_numpy(palette[self.surface.vertex_body % len(palette)])
+        self.surface_lit = ti.Vector.field(3, ti.f32, self.surface.n_vertices)  # body colours lit per vertex
+        self.per_pixel_lighting = False
         self._terrain_params = None
         self.terrain: list[_StaticMesh] = []
         self._sync_terrain()
@@ -184,12 +213,36 @@ class SimulationView:
         if self.points is not None:
             self._gather_points(x)
 
-    def draw(self, scene):
+    def light(self, rig: LightRig):
+        """Light the drawn meshes' vertices with ``rig`` (the terrain only when the rig changed)."""
         for mesh in self.terrain:
-            mesh.draw(scene, self._identity)
-        s = self.surface
+            mesh.light(rig)
         if self.show_surface:
-            draw_mesh(scene, self._identity, s.vertices, s.indices, s.normals, self.body_colors)
+            s = self.surface
+            shade(s.vertices, s.normals, self.body_colors, self.surface_lit, rig)
+
+    def lit_meshes(self) -> list[LitMesh]:
+        """Every mesh drawn, with the vertex colours of the last ``light``."""
+        meshes = [m.lit_mesh() for m in self.terrain]
+        if self.show_surface:
+            s = self.surface
+            meshes.append(LitMesh(s.vertices, s.indices, s.normals, self.surface_lit, True))
+        return meshes
+
+    def draw(self, scene, rig: LightRig):
+        """Queue the view's meshes, lines and particles into a GGUI ``scene`` lit by ``rig``."""
+        if self.per_pixel_lighting or self.show_particles:
+            apply_rig_to_ggui(scene, rig)
+            for m in self.terrain:
+                draw_mesh(scene, self._identity, m.vertices, m.indices, m.normals, m.colors, m.two_sided)
+            if self.show_surface:
+                s = self.surface
+                draw_mesh(scene, self._identity, s.vertices, s.indices, s.normals, self.body_colors)
+        else:
+            scene.ambient_light((1.0, 1.0, 1.0))  # the vertex colours are lit already: GGUI passes them on
+            self.light(rig)
+            for m in self.lit_meshes():
+                draw_mesh(scene, self._identity, m.vertices, m.indices, m.normals, m.colors)
         for name, (first, count) in self.spring_ranges.items():
             if name in self._show_springs and count:
                 # vertex_count only matters for unindexed lines; GGUI prints a warning every frame
@@ -235,3 +288,37 @@ class Renderer:
 
     def close(self):
         self.window.destroy()
+
+
+class TaichiRenderer:
+    """The offscreen renderer without Vulkan: ``raster.TaichiRasterizer`` draws the views' lit
+    meshes in Taichi kernels (the CPU path; see ``choose_renderer``). Same ``render`` as
+    ``Renderer``; surfaces and terrain only (particles and springs need GGUI)."""
+
+    def __init__(self, width: int, height: int):
+        from .raster import TaichiRasterizer
+
+        self.width, self.height = int(width), int(height)
+        self.raster = TaichiRasterizer(self.width, self.height)
+
+    @property
+    def aspect(self) -> float:
+        return self.width / self.height
+
+    def render(self, view: SimulationView, cam: CameraSpec, update: bool = True) -> np.ndarray:
+        """Draw ``view`` (its current state unless ``update`` is False) seen by ``cam``.
+
+        Returns uint8 RGB [height, width, 3], row 0 at the top.
+        """
+        if view.show_particles or view.show_springs:
+            raise ValueError("the taichi renderer draws surfaces and terrain only; particles and springs need GGUI")
+        if update:
+            view.update()
+        view.light(light_rig(cam))
+        self.raster.begin(cam, BACKGROUND)
+        for m in view.lit_meshes():
+            self.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed)
+        return self.raster.finish()
+
+    def close(self):
+        pass

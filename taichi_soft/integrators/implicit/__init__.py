@@ -4,6 +4,7 @@ local/global (``fast_mass_spring``), both minimising the step's objective (docs/
 * ``options``: the options of both, typed and documented in one place;
 * ``objective``: inertia, springs, dampers and friction: values and gradient;
 * ``contact``: feasible start, active set with hysteresis, frozen friction, restitution;
+* ``pairs``: contact between bodies (candidate pairs, penalty, friction, restitution);
 * ``driver``: the one driver both solvers share (serial in-kernel and parallel Python loops
   sequence the same decision functions), the step's energy account;
 * ``laplacian``: the constant matrix M + L and its skyline Cholesky factor;

@@ -25,6 +25,7 @@ from ..base import Integrator
 from . import slots as S
 from .contact import ContactSet
 from .objective import Objective
+from .pairs import PairContacts
 from .restitution import SpreadBounce
 from .scheme import StepScheme
 
@@ -53,7 +54,10 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         o = self.options
         self.v_new = ti.Vector.field(3, float, n)  # velocity from the solve [m/s]
         self.dv = ti.Vector.field(3, float, n)  # restitution's velocity change [m/s]
-        self.sc = ti.field(float, S.N_SC)
+        # f64 whatever the precision: its sums run over every particle (objective, residual, energies),
+        # and in f32 a sum over 10^5-10^7 terms lost the line search's decrease and the energy
+        # balance to round-off (a large body froze: docs/implicit.md, "Precision").
+        self.sc = ti.field(ti.f64, S.N_SC)
         self.ctl = ti.field(ti.i32, S.N_CTL)
         self.acc = ti.field(ti.f64, S.N_ACC)
         self.res_history = ti.field(float, S.RES_HISTORY)  # residual [m/s^2] per gradient of the last step
@@ -87,6 +91,27 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         self.release_tol[None] = max(self._tol(), 0.1)
         self._mass_version = None
 
+    # Body-body contact lives inside the step (pairs.py): setting ``contacts`` (Simulation does, for
+    # a scene with several bodies, before the first step) builds the pair terms; None builds none,
+    # so a one-body scene compiles no pair code. The explicit methods' pass after the step is not run.
+    @property
+    def contacts(self):
+        return self._contacts
+
+    @contacts.setter
+    def contacts(self, value):
+        self._contacts = value
+        self.pairs = None
+        if value is not None and self.options["body_contact"]:
+            self.pairs = PairContacts(self, self.options["contact_stiffness"])
+
+    def _has_pairs(self) -> bool:
+        return self.pairs is not None
+
+    @ti.func
+    def _body_contacts(self, x: ti.template(), v: ti.template(), dt):
+        pass  # inside the step (pairs.py)
+
     def _tol(self) -> float:
         raise NotImplementedError
 
@@ -111,7 +136,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
     # -- phase 1: begin ---------------------------------------------------------------------------
     @ti.func
     def _begin_step(self, x: ti.template(), v: ti.template(), dt):
-        """Start a step of h = dt: the scheme (scheme.py) sets y, x_base and h_eff, the step every
+        """Start a step of h = dt: the scheme (scheme.py) sets yd, u_base and h_eff, the step every
         term of the objective uses (h, or 2 h / 3 for BDF2)."""
         m = self.model
         self._choose_scheme(x, v, dt)
@@ -127,32 +152,34 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             d = x[a] - x[b]
             if self.bdf2_step[None]:
-                d = self.y[a] - self.y[b]
+                d += self.yd[a] - self.yd[b]
             length = d.norm()
             self.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
         self.sc[S.T_MAX] = 1.0
         self.sc[S.K_START] = 0.0
-        self.sc[S.G_START] = 0.0
         for i in range(self.n):
             xi = x[i]
             self.x_prev[i] = xi
             self.v_prev[i] = v[i]
+            self.u[i] = ti.Vector.zero(float, 3)
             self.grad[i] = ti.Vector.zero(float, 3)
             self.fric_hess[i] = ti.Matrix.zero(float, 3, 3)
-            d = self.y[i] - xi
+            d = self.yd[i]
             if self._free(i):
                 mi = m.mass[i]
                 self.sc[S.K_START] += 0.5 * mi * v[i].dot(v[i])
-                self.sc[S.G_START] -= mi * m.gravity[None].dot(xi)
                 if ti.static(self.terrain.has_contact):
                     d = self._start_direction(i, xi, d, he)
                 self.dx[i] = d
             else:
-                x[i] = self.y[i]  # pinned: moves with its own velocity, never solved for
+                self.u[i] = d
+                x[i] = xi + d  # pinned: moves with its own velocity, never solved for
                 self.dx[i] = ti.Vector.zero(float, 3)
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = 0
                     self.lam[i] = 0.0
+        if ti.static(self._has_pairs()):
+            self.pairs.begin(self.x_prev, self.yd, self.dx)
         for k in ti.static(range(S.N_CTL)):
             self.ctl[k] = 0
         self.sc[S.RES_PREV] = 1e30  # no release before a residual is known
@@ -197,6 +224,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         for i in range(self.n):
             if ok:
                 x[i] = self.x_trial[i]
+                self.u[i] = self.u_trial[i]
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = self.trial_active[i]
                     self.normal[i] = self.trial_normal[i]
@@ -207,10 +235,13 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
             self.sc[S.STEP] = self.sc[S.STEP_TRIAL]
         elif phase == 2:
             self.ctl[S.DONE] = 1
+            self.ctl[S.LS_FAILED] = 1  # no decrease along the direction while unconverged: counted
         if phase == 0:
             # The reference: g, spring and total energy at x_n; next, the feasible start.
-            self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.G_START] + self.sc[S.E_TRIAL]
-            self.sc[S.H_SCALE] = self.sc[S.K_START] + ti.abs(self.sc[S.G_START]) + self.sc[S.E_TRIAL]
+            # Gravity energy is measured from x_n (0 here; -m g . u at the end): its absolute value,
+            # m g y summed over the body, rounded away the balance of a step in f32.
+            self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.E_TRIAL]
+            self.sc[S.H_SCALE] = self.sc[S.K_START] + self.sc[S.E_TRIAL]
             self._line_search_begin(self.sc[S.T_MAX], S.START_HALVINGS)
         self.ctl[S.PHASE] = ti.min(phase + 1, 2)
 
@@ -276,6 +307,9 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         self.acc[S.A_BOUNCE] += ti.cast(self.ctl[S.BOUNCE_LIMITED], ti.f64)
         self.acc[S.A_LB_RESTARTS] += ti.cast(self.ctl[S.LB_RESTARTS], ti.f64)
         self.acc[S.A_BDF2] += ti.cast(self.bdf2_step[None], ti.f64)
+        if self.ctl[S.LS_FAILED]:
+            self.acc[S.A_FAILED] += 1.0
+            self.acc[S.A_FAILED_RES] = ti.max(self.acc[S.A_FAILED_RES], ti.cast(self._residual(), ti.f64))
 
     # -- the serial driver (inside the kernel that runs many steps) ------------------------------
     # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so
@@ -375,9 +409,10 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
     # -- phase 4: end --------------------------------------------------------------------------------
     @ti.func
     def _end_step(self, x: ti.template(), v: ti.template(), dt, step):
-        """v = (x - x_n)/h; restitution as a velocity step through the body (restitution.py), scaled
-        to the energy the step lost; ``_finish``; then, if the step still ends with more energy than
-        it began with (beyond round-off), the counted clamp."""
+        """v = (u - u_base)/h_e ((x - x_n)/h for backward Euler); restitution as a velocity step
+        through the body (restitution.py) and body-body responses, scaled to the energy the step lost;
+        ``_finish``; then, if the step still ends with more energy than it began with (beyond
+        round-off), the counted clamp."""
         self._end_velocities(x, dt)
         if ti.static(self.terrain.has_contact):
             self._bounce_spread()
@@ -385,28 +420,34 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
 
     @ti.func
     def _end_velocities(self, x: ti.template(), dt):
-        """Solved velocities, and the restitution each held particle asks for (its normal part
-        prescribed for the spread, the tangential friction loss kept local)."""
+        """Solved velocities (dt: this step's h_eff), and the restitution each held particle asks for
+        (its normal part prescribed for the spread, the tangential friction loss kept local)."""
         m = self.model
         self.sc[S.K_SOLVE] = 0.0
         self.sc[S.G_END] = 0.0
         self.sc[S.N_BOUNCE] = 0.0
+        if ti.static(not self.terrain.has_contact):
+            self._translation_minimum(x)
+        if ti.static(self._has_pairs()):
+            self.pairs.end(x, dt)
         for i in range(self.n):
-            vi = (x[i] - self.x_base[i]) / dt  # dt: this step's h_eff
+            vi = (self.u[i] - self.u_base[i]) / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
                 delta = self._bounce_split(i, self._bounce(i, vi))
+            if ti.static(self._has_pairs()):
+                delta += self.pairs.dv[i]
             self.v_new[i] = vi
             self.dv[i] = delta
             if self._free(i):
                 self.sc[S.K_SOLVE] += 0.5 * m.mass[i] * vi.dot(vi)
-                self.sc[S.G_END] -= m.mass[i] * m.gravity[None].dot(x[i])
+                self.sc[S.G_END] -= m.mass[i] * m.gravity[None].dot(self.u[i])
 
     @ti.func
     def _end_finish(self, x: ti.template(), v: ti.template(), step):
         m = self.model
         scale = ti.cast(1.0, float)
-        if ti.static(self.terrain.has_contact):
+        if ti.static(self.terrain.has_contact or self._has_pairs()):
             self.sc[S.BOUNCE_A] = 0.0
             self.sc[S.BOUNCE_B] = 0.0
             for i in range(self.n):
@@ -419,16 +460,14 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
             scale = self._bounce_scale(lost)
         self.sc[S.K_END] = 0.0
         for i in range(self.n):
-            vi = self.v_new[i]
-            if ti.static(self.terrain.has_contact):
-                vi += scale * self.dv[i]
-            self._finish(i, x, v, x[i], vi, step)
+            self._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
             if self._free(i):
                 self.sc[S.K_END] += 0.5 * m.mass[i] * v[i].dot(v[i])
         # Last resort, counted in stats(): take the excess out of the kinetic energy.
         excess = self.sc[S.K_END] + self.sc[S.G_END] + self.sc[S.E_CUR] - self.sc[S.H_START]
         f = ti.cast(1.0, float)
-        if self.clamp_on[None] and excess > self.energy_tol[None] * self.sc[S.H_SCALE]:
+        noise = self.sc[S.H_SCALE] + self.sc[S.K_END] + ti.abs(self.sc[S.G_END])  # scale of its round-off
+        if self.clamp_on[None] and excess > self.energy_tol[None] * noise:
             self.ctl[S.CLAMPED] = 1
             k_end = self.sc[S.K_END]
             if k_end > 0:
@@ -451,8 +490,6 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
             he = float(self.h_eff[None])
             self._solve_python(state.x, he)
             self._end_python(state.x, state.v, he, start + k)
-            if self._has_contacts():
-                self._k_body_contacts(state.x, state.v, dt)  # every step ends with body contacts
             if self.diverged:
                 break
         self._step_counter += n_steps
@@ -460,16 +497,20 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         return bad - start + 1 if self.diverged else n_steps
 
     def _sync_masses(self):
-        """Total free mass [kg] into its field when ``Model.set_particle_mass`` changed the masses."""
+        """Total free mass [kg] into its field when the masses changed (``Model.set_particle_mass``,
+        ``set_masses``: pinning one ends the step's translation invariance)."""
         if self._mass_version != self.model.mass_version:
             mass = self.model.mass_np
             self.total_mass[None] = float(np.sum(mass[mass > 0])) or 1.0
+            self.translation_free[None] = int(not self.terrain.has_contact and not (mass <= 0).any())
             self._mass_version = self.model.mass_version
 
     def reset(self):
         super().reset()
         self.acc.fill(0)
         self.lam.fill(0)  # no warm start from before the reset
+        if self.pairs is not None:
+            self.pairs.reset()
         self.n_history[None] = 0
         self.history_ok[None] = 0  # BDF2 starts its history again
 
@@ -492,22 +533,30 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
 
     def objective(self, state, dt: float) -> float:
         """g(state.x) [kg m^2] for the step begun last."""
+        self._k_displace(state.x)
         self._k_trial_at(state.x, dt, 0.0)
         return float(self.sc[S.F_TRIAL])
 
     def gradient(self, state, dt: float) -> np.ndarray:
         """grad g(state.x) [kg m], an [n, 3] array."""
+        self._k_displace(state.x)
         self._k_gradient_decide(state.x, dt)
         return self.grad.to_numpy()
 
     def hessian_product(self, state, dt: float, w: np.ndarray) -> np.ndarray:
         """H w [kg m], H the (PSD-clamped) Hessian the solver uses at state.x; w an [n, 3] array."""
+        self._k_displace(state.x)
         self._k_gradient_decide(state.x, dt)
         src = ti.Vector.field(3, float, self.n)
         dst = ti.Vector.field(3, float, self.n)
         src.from_numpy(np.asarray(w, dtype=self.model.real))
         self._k_apply(src, dst)
         return dst.to_numpy()
+
+    @ti.kernel
+    def _k_displace(self, x: ti.template()):
+        for i in range(self.n):
+            self.u[i] = x[i] - self.x_prev[i]
 
     @ti.kernel
     def _k_no_contacts(self):
@@ -532,9 +581,13 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         return a
 
     def _contact_stats(self, a: list, steps: float) -> dict:
+        """The counts of steps something intervened in or failed (``health.assess`` reads them)."""
         return {
+            "failed_solve_steps": int(a[S.A_FAILED]),
+            "failed_solve_max_residual_m_s2": a[S.A_FAILED_RES],
             "friction_updates_per_step": a[S.A_UPDATES] / steps,
             "energy_clamped_steps": int(a[S.A_CLAMPED]),
             "restitution_limited_steps": int(a[S.A_BOUNCE]),
             "bdf2_steps": int(a[S.A_BDF2]),
+            **(self.pairs.stats(steps) if self.pairs is not None else {}),
         }

@@ -51,7 +51,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             self.lb_y = ti.Vector.field(3, float, (n, self.history))  # rhs_k - rhs_{k+1} [kg m]
             self.lb_rho = ti.field(float, self.history)  # 1 / (s . y) [1/(kg m^2)]
             self.lb_alpha = ti.field(float, self.history)  # the two-loop recursion's coefficients
-            self.lb_x = ti.Vector.field(3, float, n)  # the iterate of the last direction [m]
+            self.lb_x = ti.Vector.field(3, float, n)  # the iterate of the last direction, as u = x - x_n [m]
             self.lb_r = ti.Vector.field(3, float, n)  # its rhs [kg m]
             self.lb_dot = ti.field(float, ())
         super().__init__(model, terrain, options)
@@ -87,6 +87,8 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 q -= self.group_c[m.adj_group[e]] * src[m.adj_other[e]]
             dst[i] = self._filter(i, q)
+        if ti.static(self._has_pairs()):
+            self.pairs.apply(src, dst)
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):
@@ -146,7 +148,9 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         if ti.static(self.global_solver == "cholesky"):
             if self.sc[S.N_ACTIVE] == 0:
                 self.chol.solve(self.rhs, self.dx)  # nothing held: the factorisation is exact
-            elif ti.static(self.scaled_contact):
+            elif ti.static(self.scaled_contact) and self.sc[S.N_PAIRS] == 0:
+                # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry
+                # the stiff pair penalty, and local/global then stalled at the velocity test)
                 self._scaled_direction()
             else:
                 self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
@@ -158,7 +162,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     def _global_step_python(self):
         if self.global_solver == "cholesky" and self.sc[S.N_ACTIVE] == 0:
             self.chol.solve_kernel(self.rhs, self.dx)
-        elif self.scaled_contact:
+        elif self.scaled_contact and self.sc[S.N_PAIRS] == 0:
             self._k_scaled_direction()
         else:
             self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
@@ -192,13 +196,13 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         self.lb_dot[None] = 0.0
         for i in range(self.n):
             if keep:
-                s = x[i] - self.lb_x[i]
+                s = self.u[i] - self.lb_x[i]
                 y = self.lb_r[i] - self.rhs[i]
                 self.lb_s[i, head] = s
                 self.lb_y[i, head] = y
                 self.lb_dot[None] += s.dot(y)
             if not held:
-                self.lb_x[i] = x[i]
+                self.lb_x[i] = self.u[i]
                 self.lb_r[i] = self.rhs[i]
         if not keep:
             c[S.LB_COUNT] = 0

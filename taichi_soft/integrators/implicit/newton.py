@@ -76,6 +76,8 @@ class ImplicitEuler(ImplicitIntegrator):
                 s = m.adj_spring[e]
                 q += self.spring_hess[s if s >= 0 else -s - 1] @ (src[i] - src[m.adj_other[e]])
             dst[i] = self._filter(i, q)
+        if ti.static(self._has_pairs()):
+            self.pairs.apply(src, dst)
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):

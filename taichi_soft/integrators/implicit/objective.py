@@ -1,6 +1,6 @@
 """The step's objective: inertia, springs, dampers and contact friction, its gradient and values.
 
-    g(x) = 1/2 (x - y)^T M (x - y) + h^2 E(x) + h^2 D(x) + sum_held mu lam_i f0(|u_t,i|)
+    g(x) = 1/2 (x - y)^T M (x - y) + h^2 E(x) + h^2 D(x) + sum_held mu lam_i f0(|u_t,i|) [+ grab]
     y = x_n + h v_n + h^2 g_grav,  u = x - x_n
 
 E: Hooke springs, sum_s k_s/2 (|x_a - x_b| - r_s)^2. D: the dampers' Rayleigh dissipation with
@@ -8,6 +8,9 @@ each damper direction l_s frozen at x_n, h^2 D = sum_s h kd_s/2 (l_s . (u_a - u_
 gradient / h^2 is the seed's damper force at v = u/h). Friction: the lagged dissipative potential
 of IPC (Li et al. 2020) with each held particle's multiplier lam_i (h^2 |F_n|) frozen for the
 solve (see contact.py); f0 is the Huber function with length friction_velocity * h.
+With ``solver.scheme = "bdf2"`` (scheme.py) a step may be BDF2: h is then h_e = 2h/3, y is BDF2's
+target and the dampers and friction measure u - u_base (x - x^, h_e times the end velocity). A model with
+a grab (grab.py) adds its spring (counted in E) and damper for the grabbed particle.
 
 Every term is zero or minimal at x_n except inertia and springs, and the friction term is zero at
 x_n for any multiplier, so g(x) <= g(x_n) bounds the energy a step can store whatever the
@@ -29,18 +32,31 @@ class Objective:
         vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
         self.x_prev = vec(n)  # x_n [m]
         self.v_prev = vec(n)  # v_n [m/s]
-        self.y = vec(n)  # inertial target x_n + h v_n + h^2 g [m]
+        # The solve iterates on displacements from x_n: in f32 a position near 9 m rounds to 1e-6 m,
+        # as much as a 1 ms step's motion changes per step, and the rounding was biased (free fall
+        # 2.6 % slow at 1 ms). The objective's inertia and damper terms and the step's velocity
+        # read these; positions (springs, terrain) are x_n + u.
+        self.u = vec(n)  # displacement x - x_n of the current iterate [m]
+        self.u_trial = vec(n)  # displacement of the line-search trial point [m]
+        self.yd = vec(n)  # the inertial target y as a displacement: y - x_n = h v_n + h^2 g [m]
         self.grad = vec(n)  # gradient of the objective [kg m]
         self.rhs = vec(n)  # -grad with held particles' normal components removed [kg m]
         self.dx = vec(n)  # update direction of the current iteration [m]
         self.x_trial = vec(n)  # line-search trial point [m]
         self.spring_dir = vec(m)  # damper direction l_s at x_n (frozen over the step)
         self.spring_grad = vec(m)  # d(h^2 (E + D))/dx_a per spring [kg m]
-        self.fric_hess = ti.Matrix.field(3, 3, float, n)  # Hessian block of a held particle's friction [kg]
+        # Hessian block of a particle's terms outside the springs [kg]: a held particle's friction,
+        # the grab (grab.py); the constant matrix of fast_mass_spring does not contain them.
+        self.fric_hess = ti.Matrix.field(3, 3, float, n)
         self.fric_eps = ti.field(float, ())  # friction smoothing length friction_velocity * h [m]
         self.friction_velocity = ti.field(float, ())  # [m/s], from the option (a field: read in kernels)
         self.total_mass = ti.field(float, ())  # sum of free particles' masses [kg] (see _sync_masses)
         self.h2 = ti.field(float, ())  # h^2 of the current step [s^2]
+        # 1: nothing but inertia depends on where the whole system is (no terrain, nothing pinned),
+        # so the step can minimise g exactly over rigid translations (``_translation_minimum``)
+        self.translation_free = ti.field(ti.i32, ())
+        self.translation_free[None] = int(not self.terrain.has_contact and not (model.mass_np <= 0).any())
+        self.shift = ti.Vector.field(3, float, ())  # that translation [m]
 
     @ti.func
     def _free(self, i):
@@ -59,7 +75,7 @@ class Objective:
         with no curvature along u_t, would; it is PSD and continuous at eps.
         """
         tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-        u = tp @ (xi - self.x_base[i])
+        u = tp @ (xi - self.x_prev[i] - self.u_base[i])
         sl = u.norm()
         eps = self.fric_eps[None]
         c = self.terrain.friction[None] * lam
@@ -84,7 +100,7 @@ class Objective:
         grp = m.spring_group[s]
         ge, he = spring_energy_derivatives(m, x, a, b, m.spring_rest[s], grp)
         l = self.spring_dir[s]
-        u = (x[a] - self.x_base[a]) - (x[b] - self.x_base[b])
+        u = (self.u[a] - self.u_base[a]) - (self.u[b] - self.u_base[b])  # h_e times the end velocity
         kd = m.group_kd[grp]
         return dt * dt * ge + (dt * kd * l.dot(u)) * l, dt * dt * he + (dt * kd) * l.outer_product(l)
 
@@ -102,10 +118,13 @@ class Objective:
             self._store_spring_hessian(s, hs)
         self.sc[S.RES2] = 0.0
         self.sc[S.N_ACTIVE] = 0.0
+        self.sc[S.N_PAIRS] = 0.0
         self.sc[S.LAM_CHANGE] = 0.0
         self.sc[S.LAM_SUM] = 0.0
+        if ti.static(self._has_pairs()):
+            self.pairs.gradient(x, self.u)  # body-body contact (pairs.py)
         for i in range(self.n):
-            gi = m.mass[i] * (x[i] - self.y[i])
+            gi = m.mass[i] * (self.u[i] - self.yd[i])
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 s = m.adj_spring[e]
                 if s >= 0:
@@ -114,8 +133,18 @@ class Objective:
                     gi -= self.spring_grad[-s - 1]
             r = ti.Vector.zero(float, 3)
             if self._free(i):
+                if ti.static(self._has_pairs()):
+                    gi += self.pairs.grad[i]
                 if ti.static(self.terrain.has_contact):
                     gi = self._contact_gradient(i, x[i], gi, dt)
+                if ti.static(self._has_pairs()):
+                    # the pairs' diagonal blocks join the terrain friction's (just written)
+                    if ti.static(self.terrain.has_contact):
+                        self.fric_hess[i] += self.pairs.hess[i]
+                    else:
+                        self.fric_hess[i] = self.pairs.hess[i]
+                if ti.static(self.model.has_grab()):
+                    gi = self._grab_gradient(i, x[i], gi, dt)
                 r = -gi
                 if ti.static(self.terrain.has_contact):
                     if self.active[i]:
@@ -138,15 +167,27 @@ class Objective:
         self.sc[S.DEC] = 0.0
         self.sc[S.E_TRIAL] = 0.0
         self.sc[S.STEP_TRIAL] = 0.0
+        if ti.static(self._has_pairs()):
+            self.pairs.trial_begin()
         for i in range(self.n):
-            xi = x[i] + alpha * self.dx[i]
+            ui = self.u[i] + ti.cast(alpha, float) * self.dx[i]
+            xi = self.x_prev[i] + ui
             if ti.static(self.terrain.has_contact):
                 xi = self._project(i, xi, alpha > 0)  # alpha = 0: the current point exactly
+                if self.trial_active[i]:  # on the surface: the displacement to the projected point
+                    ui = xi - self.x_prev[i]
             else:
                 self.x_trial[i] = xi
+            self.u_trial[i] = ui
             if self._free(i):
-                diff = xi - self.y[i]
+                if ti.static(self._has_pairs()):
+                    self.pairs.track(ui)  # the trust region
+                diff = ui - self.yd[i]
                 self.sc[S.F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff)
+                if ti.static(self.model.has_grab()):
+                    gv, _gg, _gh = m.grab.step_terms(i, xi, self.x_prev[i], dt)
+                    self.sc[S.F_TRIAL] += gv
+                    self.sc[S.E_TRIAL] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
                     if self.lam[i] > 0:  # held when lam was frozen, hence held here too
                         fe, _fg, _fh = self._friction(i, xi, self.trial_normal[i], self.lam[i])
@@ -157,11 +198,49 @@ class Objective:
         for s in range(m.n_springs):
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             grp = m.spring_group[s]
-            u = (self.x_trial[a] - self.x_base[a]) - (self.x_trial[b] - self.x_base[b])
+            u = (self.u_trial[a] - self.u_base[a]) - (self.u_trial[b] - self.u_base[b])
             lu = self.spring_dir[s].dot(u)
             es = spring_energy(m, self.x_trial, a, b, m.spring_rest[s], grp)
             self.sc[S.E_TRIAL] += es
             self.sc[S.F_TRIAL] += dt * dt * es + 0.5 * dt * m.group_kd[grp] * lu * lu
+        if ti.static(self._has_pairs()):
+            self.pairs.trial_end(self.x_trial, self.u_trial, dt)
+
+    @ti.func
+    def _translation_minimum(self, x: ti.template()):
+        """Move x by the rigid translation that minimises g exactly (free space only, see
+        ``translation_free``): springs, dampers and body-body pairs are invariant under it, so it is
+        the one that zeroes sum_i m_i (x_i - y_i), i.e. the step conserves linear momentum exactly
+        however early the iteration stopped (an inexact solve leaves a momentum error of the order of
+        its residual; between colliding bodies it was 5e-4 of a body's momentum). It only lowers g."""
+        m = self.model
+        free = self.translation_free[None]
+        if ti.static(m.has_grab()):
+            if m.grab.active():  # a hand holds a particle at a point: not invariant
+                free = 0
+        if free:
+            self.shift[None] = ti.Vector.zero(float, 3)
+            for i in range(self.n):
+                self.shift[None] += m.mass[i] * (self.yd[i] - self.u[i])
+            c = self.shift[None] / self.total_mass[None]
+            for i in range(self.n):
+                self.u[i] += c
+                x[i] = self.x_prev[i] + self.u[i]
+
+    @ti.func
+    def _grab_gradient(self, i, xi, gi, dt):
+        """gi plus the grab's gradient (grab.py); its Hessian goes with the friction block. While
+        particle i is grabbed it counts in ``N_ACTIVE``: fast_mass_spring's prefactored matrix lacks
+        the grab's diagonal term, so it takes its held-particle path (the factor as a
+        preconditioner), as for a particle held by friction."""
+        _gv, gg, gh = self.model.grab.step_terms(i, xi, self.x_prev[i], dt)
+        fh = ti.Matrix.zero(float, 3, 3)
+        if ti.static(self.terrain.has_contact or self._has_pairs()):
+            fh = self.fric_hess[i]  # this gradient's friction and pair blocks (written just before)
+        self.fric_hess[i] = fh + gh * ti.Matrix.identity(float, 3)
+        if gh > 0:
+            self.sc[S.N_ACTIVE] += 1.0
+        return gi + gg
 
     @ti.func
     def _residual(self):

@@ -49,6 +49,12 @@ SHARED = {
     "friction_updates": Option(4, _int_at_least(0), "an integer >= 0",
                                "most outer updates of the frozen friction multipliers per step"),
     "cg_iters": Option(200, _int_at_least(1), "an integer >= 1", "most CG iterations per linear solve"),
+    "body_contact": Option(True, _bool, "true or false",
+                           "contact between bodies inside the step (multi-body scenes; false: bodies pass "
+                           "through each other, for comparisons)"),
+    "contact_stiffness": Option(1000.0, _number_in(1.0, 1e8), "a number in [1, 1e8]",
+                                "body-body contact penalty kappa [-]: a pair's stiffness is kappa m_ij / h^2, "
+                                "so an approach stops at about 1 / (1 + kappa) of the overlap it would make"),
     "energy_clamp": Option(True, _bool, "true or false",
                            "last resort: scale velocities back if a step still ends with more energy than it "
                            "began with (every use is counted in stats())"),

@@ -10,8 +10,10 @@ and h_e = 2 h / 3,
     v_{n+1} = (x_{n+1} - x^) / h_e,
 
 i.e. a backward-Euler step of length h_e from the extrapolated state (x^, v^): the driver, both
-solvers, the dampers (u = x - x^, the velocity at the end of the step) and friction are the same
-code with ``x_base`` = x^ and h_e in place of x_n and h (Hairer & Wanner, Solving ODEs II, V.1).
+solvers, the dampers (x - x^, h_e times the velocity at the end of the step) and friction are the
+same code with h_e in place of h; the solve's displacements stay from x_n (``u``), the target is
+``yd`` = y - x_n and ``u_base`` = x^ - x_n (0 for backward Euler) (Hairer & Wanner, Solving ODEs
+II, V.1).
 
 BDF2 needs a smooth history. A step is taken with BDF2 only when the option asks for it and
 * the previous step had the same h and ended as this one begins (no reset, no body-body contact
@@ -19,7 +21,8 @@ BDF2 needs a smooth history. A step is taken with BDF2 only when the option asks
 * the previous step touched nothing: no particle held or within the terrain's ``epsilon`` at its
   end, no restitution, no energy clamp (a velocity jump in the history would be extrapolated:
   after an impact v^ points away from the ground and would make a bounce of its own);
-* this step touches nothing: x_n, x^ and y of every particle outside the terrain.
+* this step touches nothing: x_n, x^ and y of every particle outside the terrain;
+* the model has no grab and no body-body pairs (their step terms are written for backward Euler).
 Every other step is backward Euler, so contact, friction, restitution and the clamp work exactly
 as before, and the first step after any of these events starts BDF2's history again.
 """
@@ -35,7 +38,7 @@ class StepScheme:
 
     def _init_scheme(self, bdf2: bool):
         n = self.n
-        self.x_base = ti.Vector.field(3, float, n)  # x^ (x_n for backward Euler) [m]
+        self.u_base = ti.Vector.field(3, float, n)  # x^ - x_n (0 for backward Euler) [m]
         self.x_end = ti.Vector.field(3, float, n)  # state the last step left [m]
         self.v_end = ti.Vector.field(3, float, n)  # [m/s]
         self.bdf2_on = ti.field(ti.i32, ())  # the option: 1 = BDF2 where the history allows
@@ -47,23 +50,25 @@ class StepScheme:
 
     @ti.func
     def _choose_scheme(self, x: ti.template(), v: ti.template(), dt):
-        """Decide this step's scheme; write x_base, y and h_eff. Runs before x_prev/v_prev (the last
+        """Decide this step's scheme; write u_base, yd and h_eff. Runs before x_prev/v_prev (the last
         step's start, x_{n-1} and v_{n-1}) are overwritten. (Loops stay top-level for the parallel
         driver; their iterations only ever clear the flag.)"""
         m = self.model
         he = ti.cast(2.0 / 3.0, float) * dt
         g = m.gravity[None]
         self.bdf2_step[None] = self.bdf2_on[None] * self.history_ok[None] * ti.cast(self.dt_last[None] == dt, ti.i32)
+        if ti.static(self._has_pairs() or m.has_grab()):
+            self.bdf2_step[None] = 0
         for i in range(self.n):
             if self.bdf2_step[None] and self._free(i):
                 if any(x[i] != self.x_end[i]) or any(v[i] != self.v_end[i]):
                     self.bdf2_step[None] = 0
                 if ti.static(self.terrain.has_contact):
-                    xb = (4.0 * x[i] - self.x_prev[i]) / 3.0
-                    yb = xb + he * (4.0 * v[i] - self.v_prev[i]) / 3.0 + he * he * g
+                    ub = (x[i] - self.x_prev[i]) / 3.0
+                    yb = ub + he * (4.0 * v[i] - self.v_prev[i]) / 3.0 + he * he * g
                     d0, _n0 = self.terrain.query(i, x[i])
-                    d1, _n1 = self.terrain.query(i, xb)
-                    d2, _n2 = self.terrain.query(i, yb)
+                    d1, _n1 = self.terrain.query(i, x[i] + ub)
+                    d2, _n2 = self.terrain.query(i, x[i] + yb)
                     if ti.min(d0, d1, d2) <= 0:
                         self.bdf2_step[None] = 0
         ok = self.bdf2_step[None]
@@ -71,16 +76,16 @@ class StepScheme:
         self.sc[S.DT_STEP] = dt
         for i in range(self.n):
             if ok and self._free(i):
-                xb = (4.0 * x[i] - self.x_prev[i]) / 3.0
-                self.x_base[i] = xb
-                self.y[i] = xb + he * (4.0 * v[i] - self.v_prev[i]) / 3.0 + he * he * g
+                ub = (x[i] - self.x_prev[i]) / 3.0
+                self.u_base[i] = ub
+                self.yd[i] = ub + he * (4.0 * v[i] - self.v_prev[i]) / 3.0 + he * he * g
             elif self._free(i):
-                self.x_base[i] = x[i]
-                self.y[i] = x[i] + dt * v[i] + dt * dt * g
+                self.u_base[i] = ti.Vector.zero(float, 3)
+                self.yd[i] = dt * v[i] + dt * dt * g
             else:
-                # pinned: moves with its own velocity over the true step; v = (x - x_base) / h_eff
-                self.y[i] = x[i] + dt * v[i]
-                self.x_base[i] = x[i] + (dt - self.h_eff[None]) * v[i]
+                # pinned: moves with its own velocity over the true step; v = (u - u_base) / h_eff
+                self.yd[i] = dt * v[i]
+                self.u_base[i] = (dt - self.h_eff[None]) * v[i]
 
     @ti.func
     def _record_history(self, x: ti.template(), v: ti.template()):

@@ -1,6 +1,6 @@
 """Slots of the per-step scalar fields every phase of an implicit step reads and writes.
 
-``sc`` (float): objective values, residuals, line-search state. ``ctl`` (i32): the driver's
+``sc`` (f64 in either precision: its sums run over all particles): objective values, residuals, line-search state. ``ctl`` (i32): the driver's
 decisions and counters. Decisions are taken in ti.funcs that write these slots, so the serial
 (in-kernel) and parallel (Python-driven) drivers take the same decisions.
 """
@@ -12,28 +12,29 @@ RES_PREV = 2  # residual [m/s^2] of the last gradient (release margin of the act
 F_CUR = 3  # objective at the current iterate [kg m^2]
 F_TRIAL = 4  # objective at the line-search trial point
 DEC = 5  # grad . (x_trial - x): first-order decrease predicted for the trial [kg m^2]
-N_ACTIVE = 6  # particles held on the terrain after the last gradient
+N_ACTIVE = 6  # particles held on the terrain, plus body-body pairs in contact, plus a grabbed particle
+    # (grab.py), after the last gradient
 ALPHA = 7  # line-search step fraction of the trial
 STEP = 8  # largest particle move of the last accepted update [m]
 STEP_TRIAL = 9  # largest particle move of the trial [m]
 E_TRIAL = 10  # spring energy at the trial point [J]
 E_CUR = 11  # spring energy at the current iterate [J]
-H_START = 12  # total energy (kinetic + gravity + springs) at the start of the step [J]
-H_SCALE = 13  # |kinetic| + |gravity| + |springs| at the start: scale of its round-off [J]
+H_START = 12  # total energy (kinetic + springs; gravity is measured from x_n) at the start of the step [J]
+H_SCALE = 13  # kinetic + springs at the start: with the end's energies, the scale of the balance's round-off [J]
 K_START = 14  # kinetic energy at the start [J]
-G_START = 15  # gravity energy at the start [J]
 LAM_CHANGE = 16  # sum |lam_candidate - lam_frozen| over held particles [kg m]
 LAM_SUM = 17  # sum lam_candidate over held particles [kg m]
 T_MAX = 18  # largest feasible fraction of the predicted step
 BOUNCE_A = 19  # restitution: sum 1/2 m |dv|^2 [J]
 BOUNCE_B = 20  # restitution: sum m v . dv [J]
 K_SOLVE = 21  # kinetic energy of the solved velocities [J]
-G_END = 22  # gravity energy at the end [J]
+G_END = 22  # gravity energy at the end, from x_n: -sum m g . (x - x_n) [J]
 K_END = 23  # kinetic energy after the collision response [J]
 H2_PREV = 24  # h^2 of the previous step [s^2] (the multipliers kept for the warm start are in its units)
-N_BOUNCE = 25  # held particles given a restitution velocity in this step's end
-DT_STEP = 26  # h of this step [s] (the scheme's h_eff may be 2 h / 3)
-N_SC = 27
+N_PAIRS = 25  # body-body pairs in contact after the last gradient (pairs.py; also counted in N_ACTIVE)
+N_BOUNCE = 26  # held particles given a restitution velocity in this step's end
+DT_STEP = 27  # h of this step [s] (the scheme's h_eff may be 2 h / 3)
+N_SC = 28
 
 # ctl: ints
 DONE = 0  # 1: the step's iteration is over
@@ -57,11 +58,12 @@ LB_UPDATES = 16  # friction refreezes (UPDATES) when the last direction was take
 LB_HELD = 17  # 1: particles were held when the last direction was taken
 LB_RETRY = 18  # 1: the L-BFGS direction was no descent direction; take the global step alone
 LB_RESTARTS = 19  # such restarts in this step
-N_CTL = 20
+LS_FAILED = 20  # 1: an iteration's line search failed before the step converged (the step ended there)
+N_CTL = 21
 
 # acc: f64 sums over steps since the last stats() call
-A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE, A_LB_RESTARTS, A_BDF2 = range(10)
-N_ACC = 10
+A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE, A_LB_RESTARTS, A_FAILED, A_FAILED_RES, A_BDF2 = range(12)
+N_ACC = 12
 
 START_HALVINGS = 3  # most halvings of the feasible start fraction before starting at x_n
 RES_HISTORY = 64  # residuals of the last step's gradient evaluations kept for inspection

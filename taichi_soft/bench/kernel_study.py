@@ -1,0 +1,162 @@
+"""Why the engine's gather was slower than a plain Taichi kernel: one change at a time.
+
+    python -m taichi_soft.bench.kernel_study [--n 40] [--precision f32] [--no-fast-math] [--threads 1]
+
+Times, in one process and interleaved (one repeat of each in turn, medians), semi-implicit Euler
+steps of the same stretched n^3 cube (no terrain) with gather kernels that differ in one thing:
+
+* ``yardstick``: the plain kernel of ../shared/bench/taichi_ref.py --mode gather --perspring
+  (CSR rows, ``d / length``, no zero-length guard, k and kd per entry);
+* ``csr_branch``: the engine's old spring loop: ``if length > 0`` around the force (CSR rows);
+* ``csr``: the same without the branch (``length + TINY``, forces.spring_force);
+* ``rows``: padded rows of constant length (rows.py), the engine's loop since issue 25;
+* ``rows_lookup``: the same, k and kd looked up through the spring group per slot;
+* the engine itself (``engine gather``, ``engine scatter``) through ``Simulation.advance``.
+
+Prints steps per second of wall time and of CPU time (the steadier measure on a shared machine)
+and each ratio to the yardstick. docs/benchmarks/README.md, "Speed (issue 25)", has the
+results and the generated code behind them (``ti.init(print_kernel_asm=True)``).
+"""
+
+import argparse
+import os
+import statistics
+import time
+
+import numpy as np
+
+VARIANTS = ("yardstick", "csr_branch", "csr", "rows", "rows_lookup")
+
+
+def _kernels(sim):
+    """{variant: step(xo, vo, xn, vn)} on the simulation's model, plus its helper fields."""
+    import taichi as ti
+
+    from ..forces import spring_force
+    from ..rows import SpringRows
+
+    m = sim.model
+    m.ensure_adjacency()
+    rows = SpringRows(m)
+    e = 2 * m.n_springs
+    group = m.adj_group.to_numpy()[:e]
+    k_np, kd_np = m.group_k.to_numpy(), m.group_kd.to_numpy()
+    k_e, kd_e = ti.field(float, e), ti.field(float, e)
+    k_e.from_numpy(k_np[group])
+    kd_e.from_numpy(kd_np[group])
+    w = rows.width
+    slot_group = rows.group.to_numpy()
+    rows.kkd.from_numpy(np.stack([k_np[slot_group], kd_np[slot_group]], axis=1))
+    dt, inv_m = sim.dt, 1.0 / float(m.mass_np[0])
+    g = tuple(float(c) for c in m.gravity[None].to_numpy())
+
+    def make(variant):
+        @ti.kernel
+        def step(xo: ti.template(), vo: ti.template(), xn: ti.template(), vn: ti.template()):
+            for i in range(m.n_particles):
+                xi, vi = xo[i], vo[i]
+                f = ti.Vector.zero(float, 3)
+                if ti.static(variant.startswith("rows")):
+                    for s in range(w):
+                        slot = i * w + s
+                        j = rows.other[slot]
+                        d = xi - xo[j]
+                        kkd = ti.Vector.zero(float, 2)
+                        if ti.static(variant == "rows_lookup"):
+                            kkd = ti.Vector([m.group_k[rows.group[slot]], m.group_kd[rows.group[slot]]])
+                        else:
+                            kkd = rows.kkd[slot]
+                        f += spring_force(d, vi - vo[j], d.norm(), rows.rest[slot], kkd[0], kkd[1])
+                else:
+                    for a in range(m.adj_offset[i], m.adj_offset[i + 1]):
+                        j = m.adj_other[a]
+                        d = xi - xo[j]
+                        length = d.norm()
+                        if ti.static(variant == "yardstick"):
+                            lh = d / length
+                            f += -k_e[a] * (length - m.adj_rest[a]) * lh - kd_e[a] * (vi - vo[j]).dot(lh) * lh
+                        elif ti.static(variant == "csr_branch"):
+                            if length > 0:
+                                lh = d * (1.0 / length)
+                                f -= (k_e[a] * (length - m.adj_rest[a]) + kd_e[a] * (vi - vo[j]).dot(lh)) * lh
+                        else:
+                            f += spring_force(d, vi - vo[j], length, m.adj_rest[a], k_e[a], kd_e[a])
+                v_new = vi + dt * (f * inv_m + ti.Vector(g))
+                vn[i] = v_new
+                xn[i] = xi + dt * v_new
+
+        return step
+
+    return {v: make(v) for v in VARIANTS}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--n", type=int, default=40)
+    p.add_argument("--precision", default="f32", choices=("f32", "f64"))
+    p.add_argument("--no-fast-math", action="store_true")
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--rounds", type=int, default=7)
+    a = p.parse_args(argv)
+    from .. import runtime
+
+    runtime.init("cpu", a.precision, fast_math=not a.no_fast_math, cpu_max_num_threads=a.threads)
+    import taichi as ti
+
+    from ..scene import load_scene
+    from ..simulation import Simulation
+    from .speed import REFERENCE_SCENE
+
+    def sim_for(forces):
+        scene = load_scene("plane", [f"body.0.n={a.n}", *REFERENCE_SCENE])
+        return Simulation(scene, integrator="semi_implicit_euler", options={"forces": forces, "mode": "parallel"})
+
+    base = sim_for("gather")
+    kernels = _kernels(base)
+    x2 = ti.Vector.field(3, float, base.model.n_particles)
+    v2 = ti.Vector.field(3, float, base.model.n_particles)
+
+    def stepper(kernel):
+        def advance(k):
+            st = base.state
+            for s in range(k):
+                if s % 2 == 0:
+                    kernel(st.x, st.v, x2, v2)
+                else:
+                    kernel(x2, v2, st.x, st.v)
+        return base.reset, advance
+
+    runs = {name: stepper(kern) for name, kern in kernels.items()}
+    for forces in ("gather", "scatter"):
+        sim = sim_for(forces)
+        runs[f"engine {forces}"] = (sim.reset, sim.advance)
+    chunk = max(4, int(2e7 / (a.n ** 3 * 13)) // 2 * 2)
+    for reset, advance in runs.values():
+        advance(2)
+    ti.sync()
+    wall = {k: [] for k in runs}
+    cpu = {k: [] for k in runs}
+    names = list(runs)
+    for r in range(a.rounds):
+        for name in names[r % len(names):] + names[:r % len(names)]:
+            reset, advance = runs[name]
+            reset()
+            ti.sync()
+            c0, t0 = time.process_time(), time.perf_counter()
+            advance(chunk)
+            ti.sync()
+            wall[name].append(time.perf_counter() - t0)
+            cpu[name].append(time.process_time() - c0)
+    print(f"n = {a.n}, {a.precision}, fast math {'off' if a.no_fast_math else 'on'}, {a.threads} thread(s), "
+          f"{chunk} steps x {a.rounds} rounds, load {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
+    ref_w = chunk / statistics.median(wall["yardstick"])
+    ref_c = chunk / statistics.median(cpu["yardstick"])
+    print(f"{'kernel':18s} {'steps/s':>9s} {'steps/CPU s':>12s} {'/ yardstick (wall, CPU)':>26s}")
+    for name in names:
+        w, c = chunk / statistics.median(wall[name]), chunk / statistics.median(cpu[name])
+        print(f"{name:18s} {w:9.1f} {c:12.1f} {w / ref_w:12.2f} {c / ref_c:12.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,33 @@
+"""What an implicit run's own counters say about its answer: warnings, and whether it is meaningless.
+
+The solver knows when a step went wrong: its line search found no decrease before the step
+converged (the step ends at the last accepted iterate, short of the solution), or the energy
+clamp had to take energy out of the velocities (the step ended with more energy than it began
+with). A few such steps in a long run are worth a line; when they are a large share of the steps
+the result is driven by the fallback rather than by the physics, and the run must not pass as a
+success (``run`` exits with ``EXIT_UNRELIABLE``).
+"""
+
+# A warning is printed when any step's solve failed or the clamp acted on at least this share of
+# the steps; the answer is called meaningless at or beyond MEANINGLESS_SHARE of either.
+CLAMP_WARN_SHARE = 0.05
+MEANINGLESS_SHARE = 0.5
+
+
+def assess(stats: dict) -> tuple[list[str], bool]:
+    """(warning lines, meaningless) from an implicit integrator's ``stats()`` (any other: none)."""
+    steps = int(stats.get("steps", 0))
+    if steps <= 0 or "failed_solve_steps" not in stats:
+        return [], False
+    failed = int(stats["failed_solve_steps"])
+    clamped = int(stats.get("energy_clamped_steps", 0))
+    lines = []
+    if failed:
+        lines.append(f"{failed} of {steps} steps ended with a failed line search (no decrease of the step's "
+                     f"objective before it converged; residual up to {stats['failed_solve_max_residual_m_s2']:.3g} m/s^2): "
+                     "those steps stopped short of the implicit solution")
+    if clamped >= CLAMP_WARN_SHARE * steps:
+        lines.append(f"the energy clamp acted on {clamped} of {steps} steps (they ended with more energy than they "
+                     "began with and their velocities were scaled down)")
+    meaningless = max(failed, clamped) >= MEANINGLESS_SHARE * steps
+    return lines, meaningless

@@ -1,0 +1,388 @@
+"""Body-body contact inside the implicit step: pairs, penalty, friction, restitution.
+
+Only an implicit integrator of a scene with several bodies builds a ``PairContacts`` (a one-body
+scene compiles none of this). Particles are spheres of radius half their body's lattice spacing
+(``collision.contact_radii``, as for the explicit methods); a pair (i, j) of particles of
+different bodies overlaps by o = R_ij - |x_i - x_j|, R_ij = r_i + r_j. Per step
+(docs/implicit.md, "Contact between bodies"):
+
+* **Pairs** (``begin``): each body's bounding box at x_n; only particles within ``cell`` of
+  another body's box are hashed (bodies apart cost a few passes over the particles and no
+  lookups), into a uniform grid of edge ``cell`` (a counting sort: no bucket can overflow); the
+  candidate pairs are those closer than R_ij + ``slack`` at x_n, ``slack`` = 2 max |y - x_n| +
+  R_max / 2 (y the predictor). **Trust region**: every trial point of the step keeps each particle
+  within ``slack`` / 2 of x_n (a trial beyond is rejected, counted), so a pair outside the list
+  cannot come into contact anywhere the solver looks: the list is complete for the whole step
+  without a rebuild per iteration.
+* **Feasible start**: the start fraction t of the predicted move is lowered to the first contact
+  of any candidate pair (the terrain's feasible start, extended to pairs).
+* **Contact in the objective**: a stiff penalty kappa m_ij / 2 o^2 [kg m^2] per overlapping pair
+  (m_ij the reduced mass, kappa ``contact_stiffness``), i.e. a pair potential of stiffness
+  kappa m_ij / h^2 [N/m]: a minimiser stops an approach of o_pred (the overlap the free motion
+  would make) at about o_pred / (1 + kappa). Its gradient acts on both particles equal and
+  opposite, so momentum between bodies is exchanged exactly. Hessian block kappa m_ij n n^T (the
+  transverse part, negative under overlap, clamped to 0 as for a compressed spring).
+* **Coulomb friction between bodies**: the terrain's lagged friction (IPC) on the relative
+  tangential displacement of a pair, mu lam f0(|u_t|), its multiplier lam = kappa m_ij o (h^2 |F_n|)
+  and normal frozen for the solve and refrozen with the terrain's (``ctl[UPDATE]``); a pair that
+  separates is released at once. Equal and opposite like the normal force.
+* **Restitution** (``end``): a pair in contact at the end whose approach at the start was faster
+  than the bounce threshold gets a relative normal velocity of restitution times its approach,
+  as an impulse split by inverse mass (equal and opposite), relaxed by the contact count of its
+  busier particle; the driver scales all bounces of a step to the energy the step lost.
+"""
+
+import numpy as np
+import taichi as ti
+
+from ...collision import contact_radii, table_size
+from . import slots as S
+
+# Capacity of the candidate list per particle (overflow is counted). The pile scene needs under 1 per
+# particle (525 candidates for 683 particles at 1/60 s); a fast body widens the slack and with it the list.
+PAIRS_PER_PARTICLE = 12
+# stats accumulators (f64)
+P_CONTACT, P_REMOVED, P_DEEPEST, P_OVERFLOW, P_TRUST, P_PAIRS, P_BOUNCES = range(7)
+N_PACC = 7
+
+
+def field_bytes(n_particles: int, real_bytes: int) -> int:
+    """Bytes of a ``PairContacts``'s fields (for the memory model): per candidate pair two ends
+    (i32), a multiplier, its normal and a 3x3 block (reals); per particle body, near flag, sorted
+    index and contact count (i32), radius, gradient, restitution and a 3x3 block (reals); per hash
+    bucket a count and a start (i32)."""
+    pairs = PAIRS_PER_PARTICLE * n_particles * (2 * 4 + 13 * real_bytes)
+    return pairs + n_particles * (4 * 4 + 16 * real_bytes) + table_size(n_particles) * 2 * 4
+
+
+@ti.data_oriented
+class PairContacts:
+    """Contact between the bodies of ``owner.model`` inside ``owner``'s step (an ImplicitIntegrator)."""
+
+    def __init__(self, owner, stiffness: float):
+        model = owner.model
+        n = model.n_particles
+        self.owner = owner
+        self.model = model
+        self.terrain = owner.terrain
+        self.n = n
+        self.n_bodies = len(model.bodies)
+        self.capacity = PAIRS_PER_PARTICLE * n
+        self.table_size = table_size(n)
+        vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
+        self.body = ti.field(ti.i32, n)
+        self.radius = ti.field(float, n)
+        self.near = ti.field(ti.i32, n)
+        self.lo = vec(self.n_bodies)  # bounding box of each body at x_n [m]
+        self.hi = vec(self.n_bodies)
+        self.r_max = ti.field(float, ())  # largest contact distance R_ij [m]
+        self.kappa = ti.field(float, ())  # penalty stiffness [-], times m_ij / h^2 [N/m]
+        self.kappa[None] = stiffness
+        self.slack = ti.field(float, ())  # candidate distance beyond R_ij [m]; trust radius slack / 2
+        self.cell = ti.field(float, ())  # hash cell edge [m]
+        self.move = ti.field(float, ())  # largest |x_trial - x_n| of the last trial [m]
+        self.bucket_count = ti.field(ti.i32, self.table_size)
+        self.bucket_start = ti.field(ti.i32, self.table_size + 1)
+        self.sorted = ti.field(ti.i32, n)
+        self.n_pairs = ti.field(ti.i32, ())
+        self.pa = ti.field(ti.i32, self.capacity)
+        self.pb = ti.field(ti.i32, self.capacity)
+        self.lam = ti.field(float, self.capacity)  # frozen friction multiplier h^2 |F_n| [kg m]
+        self.fnormal = vec(self.capacity)  # the normal frozen with it
+        self.block = ti.Matrix.field(3, 3, float, self.capacity)  # pair Hessian block [kg]
+        self.grad = vec(n)  # pair terms' gradient per particle [kg m]
+        self.hess = ti.Matrix.field(3, 3, float, n)  # their diagonal Hessian blocks [kg]
+        self.dv = vec(n)  # restitution velocity change [m/s]
+        self.touch = ti.field(ti.i32, n)  # pairs in contact at the end of the step
+        self.acc = ti.field(ti.f64, N_PACC)
+        body = np.zeros(n, np.int32)
+        for b, info in enumerate(model.bodies):
+            body[info.particles] = b
+        radii = contact_radii(model)
+        self.body.from_numpy(body)
+        self.radius.from_numpy(radii.astype(model.real))
+        self.r_max[None] = 2.0 * float(radii.max())
+
+    def stats(self, steps: float) -> dict:
+        """Counters for the run summary since the last call: pairs in contact at the end of a step
+        (per step), overlap the predictor would have made and the step removed [m, summed over
+        pairs and steps], the deepest overlap at the end of any step [m], candidate pairs per step,
+        restitution bounces, list overflows and trials beyond the trust region."""
+        a = self.acc.to_numpy()
+        self.acc.fill(0)
+        return {
+            "body_pairs_in_contact_per_step": float(a[P_CONTACT]) / steps,
+            "body_overlap_removed_m": float(a[P_REMOVED]),
+            "body_deepest_overlap_m": float(a[P_DEEPEST]),
+            "body_candidate_pairs_per_step": float(a[P_PAIRS]) / steps,
+            "body_bounces": int(a[P_BOUNCES]),
+            "body_pair_overflows": int(a[P_OVERFLOW]),
+            "body_trust_region_rejections": int(a[P_TRUST]),
+        }
+
+    def reset(self):
+        self.acc.fill(0)
+
+    # -- geometry -------------------------------------------------------------------------------
+    @ti.func
+    def _cell_of(self, p):
+        return ti.floor(p / self.cell[None], ti.i32)
+
+    @ti.func
+    def _bucket(self, c):
+        # Teschner et al. 2003 spatial hash; i32 products wrap, the mask keeps it in range.
+        h = (c.x * 73856093) ^ (c.y * 19349663) ^ (c.z * 83492791)
+        return h & (self.table_size - 1)
+
+    @ti.func
+    def _reach(self, i, j):
+        return self.radius[i] + self.radius[j]
+
+    @ti.func
+    def _stiffness(self, i, j):
+        """kappa m_ij [kg], m_ij the reduced mass (a pinned end: the free one's mass)."""
+        inv = self.model.inv_mass[i] + self.model.inv_mass[j]
+        return self.kappa[None] / ti.max(inv, 1e-30)
+
+    # -- begin: candidate pairs, feasible start ---------------------------------------------------
+    @ti.func
+    def begin(self, xp: ti.template(), yd: ti.template(), d: ti.template()):
+        """Candidate pairs at x_n = ``xp`` for the predicted move ``yd`` = y - x_n [m]; lowers the
+        owner's start fraction T_MAX to the first contact along the start direction ``d`` [m]."""
+        self.slack[None] = 0.0
+        for i in range(self.n):
+            ti.atomic_max(self.slack[None], yd[i].norm())
+        self.slack[None] = 2.0 * self.slack[None] + 0.5 * self.r_max[None]
+        self.cell[None] = self.r_max[None] + self.slack[None]
+        for b in range(self.n_bodies):
+            self.lo[b] = ti.Vector([1e30, 1e30, 1e30], dt=float)
+            self.hi[b] = ti.Vector([-1e30, -1e30, -1e30], dt=float)
+        for i in range(self.n):
+            b = self.body[i]
+            for c in ti.static(range(3)):
+                ti.atomic_min(self.lo[b][c], xp[i][c])
+                ti.atomic_max(self.hi[b][c], xp[i][c])
+        for h in range(self.table_size):
+            self.bucket_count[h] = 0
+        self.n_pairs[None] = 0
+        for i in range(self.n):
+            self.near[i] = 0
+            xi, reach = xp[i], self.cell[None]
+            for b in range(self.n_bodies):
+                if b != self.body[i] and all(xi >= self.lo[b] - reach) and all(xi <= self.hi[b] + reach):
+                    self.near[i] = 1
+            if self.near[i]:
+                ti.atomic_add(self.bucket_count[self._bucket(self._cell_of(xi))], 1)
+        for _ in range(1):  # one thread: the prefix sum is sequential
+            total = 0
+            for h in range(self.table_size):
+                self.bucket_start[h] = total
+                total += self.bucket_count[h]
+                self.bucket_count[h] = 0  # reused as the fill cursor
+            self.bucket_start[self.table_size] = total
+        for i in range(self.n):
+            if self.near[i]:
+                h = self._bucket(self._cell_of(xp[i]))
+                k = ti.atomic_add(self.bucket_count[h], 1)
+                self.sorted[self.bucket_start[h] + k] = i
+        for i in range(self.n):
+            if self.near[i]:
+                self._find(xp, i)
+        self.n_pairs[None] = ti.min(self.n_pairs[None], self.capacity)
+        self.acc[P_PAIRS] += ti.cast(self.n_pairs[None], ti.f64)
+        for p in range(self.n_pairs[None]):
+            i, j = self.pa[p], self.pb[p]
+            self.lam[p] = 0.0
+            r = self._reach(i, j)
+            a = xp[i] - xp[j]
+            self.acc[P_REMOVED] += ti.cast(ti.max(r - (a + yd[i] - yd[j]).norm(), 0.0), ti.f64)
+            b = d[i] - d[j]
+            # First t in (0, 1] with |a + t b| = r, for a pair apart at x_n.
+            bb = b.dot(b)
+            ab = a.dot(b)
+            cc = a.dot(a) - r * r
+            if cc > 0 and bb > 0 and ab < 0:
+                disc = ab * ab - bb * cc
+                if disc > 0:
+                    t = (-ab - ti.sqrt(disc)) / bb
+                    if t < 1.0:
+                        ti.atomic_min(self.owner.sc[S.T_MAX], ti.max(t, 0.0))
+
+    @ti.func
+    def _find(self, xp: ti.template(), i):
+        """Append particle i's candidate pairs (j > i, another body, within R_ij + slack at x_n)."""
+        xi, bi = xp[i], self.body[i]
+        ci = self._cell_of(xi)
+        for o in range(27):  # the 3x3x3 cells around i's (a run-time loop: unrolled it compiles slowly)
+            c = ci + ti.Vector([o // 9 - 1, (o // 3) % 3 - 1, o % 3 - 1])
+            h = self._bucket(c)
+            for k in range(self.bucket_start[h], self.bucket_start[h + 1]):
+                j = self.sorted[k]
+                # Buckets are shared by distant cells (and two neighbour cells may share one):
+                # take j only from the cell it really lies in, so each pair is seen once.
+                if j > i and self.body[j] != bi and all(self._cell_of(xp[j]) == c):
+                    if (xi - xp[j]).norm() < self._reach(i, j) + self.slack[None]:
+                        p = ti.atomic_add(self.n_pairs[None], 1)
+                        if p < self.capacity:
+                            self.pa[p] = i
+                            self.pb[p] = j
+                        else:
+                            ti.atomic_add(self.acc[P_OVERFLOW], 1.0)
+
+    # -- the objective --------------------------------------------------------------------------
+    @ti.func
+    def _friction(self, p, disp: ti.template(), nrm, lam):
+        """Friction of pair p at displacements ``disp`` = x - x_n: (energy [kg m^2], gradient w.r.t.
+        x_i [kg m], Hessian block [kg]); the terrain's Huber-smoothed lagged friction on the relative
+        tangential displacement."""
+        i, j = self.pa[p], self.pb[p]
+        tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+        u = tp @ (disp[i] - disp[j])
+        sl = u.norm()
+        eps = self.owner.fric_eps[None]
+        c = self.terrain.friction[None] * lam
+        energy = ti.cast(0.0, float)
+        grad = ti.Vector.zero(float, 3)
+        hess = ti.Matrix.zero(float, 3, 3)
+        if sl < eps:
+            energy = 0.5 * c * sl * sl / eps
+            grad = (c / eps) * u
+            hess = (c / eps) * tp
+        else:
+            energy = c * (sl - 0.5 * eps)
+            grad = (c / sl) * u
+            hess = (c / sl) * tp
+        return energy, grad, hess
+
+    @ti.func
+    def _normal(self, p, d, dist):
+        nrm = self.fnormal[p]
+        if dist > 0:
+            nrm = d / dist
+        return nrm
+
+    @ti.func
+    def gradient(self, x: ti.template(), disp: ti.template()):
+        """Per-particle gradient (``grad``) and diagonal Hessian blocks (``hess``) of the pair terms
+        at positions x (displacements ``disp`` = x - x_n), the pair blocks for ``apply``; freezes, refreezes (``ctl[UPDATE]``) and releases
+        friction multipliers, correcting the objective value as the terrain's do. Adds the pairs
+        in contact to N_ACTIVE and their candidate multipliers to the refreeze test's sums."""
+        for i in range(self.n):
+            self.grad[i] = ti.Vector.zero(float, 3)
+            self.hess[i] = ti.Matrix.zero(float, 3, 3)
+        for p in range(self.n_pairs[None]):
+            i, j = self.pa[p], self.pb[p]
+            d = x[i] - x[j]
+            dist = d.norm()
+            ov = self._reach(i, j) - dist
+            kp = self._stiffness(i, j)
+            nrm = self._normal(p, d, dist)
+            g = ti.Vector.zero(float, 3)
+            hb = ti.Matrix.zero(float, 3, 3)
+            lam_old = self.lam[p]
+            lam_new = lam_old
+            n_old = self.fnormal[p]
+            refrozen = 0
+            if ov > 0:
+                g = -(kp * ov) * nrm
+                hb = kp * nrm.outer_product(nrm)
+                self.owner.sc[S.N_ACTIVE] += 1.0
+                self.owner.sc[S.N_PAIRS] += 1.0
+                cand = kp * ov
+                if self.owner.ctl[S.UPDATE] or lam_old == 0:
+                    lam_new = cand
+                    self.fnormal[p] = nrm
+                    refrozen = 1
+                self.owner.sc[S.LAM_CHANGE] += ti.abs(cand - lam_new)
+                self.owner.sc[S.LAM_SUM] += cand
+            else:
+                lam_new = 0.0  # apart: released at once
+            changed = refrozen or lam_new != lam_old
+            if changed and lam_old > 0:  # the objective's friction term changes from lam_old f0(n_old) ...
+                f_old, _g, _h = self._friction(p, disp, n_old, lam_old)
+                self.owner.sc[S.F_CUR] -= f_old
+            if lam_new > 0:  # ... to lam_new f0(n_new)
+                f_new, fg, fh = self._friction(p, disp, self.fnormal[p], lam_new)
+                if changed:
+                    self.owner.sc[S.F_CUR] += f_new
+                g += fg
+                hb += fh
+            self.lam[p] = lam_new
+            self.block[p] = hb
+            self.grad[i] += g
+            self.grad[j] -= g
+            self.hess[i] += hb
+            self.hess[j] += hb
+
+    @ti.func
+    def apply(self, src: ti.template(), dst: ti.template()):
+        """Add the pair blocks' off-diagonal part to dst = H src (the diagonal is in the owner's
+        per-particle contact blocks), filtered as the owner filters its rows."""
+        for p in range(self.n_pairs[None]):
+            i, j = self.pa[p], self.pb[p]
+            hb = self.block[p]
+            dst[i] -= self.owner._filter(i, hb @ src[j])
+            dst[j] -= self.owner._filter(j, hb @ src[i])
+
+    @ti.func
+    def trial_begin(self):
+        self.move[None] = 0.0
+
+    @ti.func
+    def track(self, ui):
+        """Record a trial particle's displacement ``ui`` from x_n [m] (the trust region)."""
+        ti.atomic_max(self.move[None], ui.norm())
+
+    @ti.func
+    def trial_end(self, xt: ti.template(), ut: ti.template(), dt):
+        """Add the pair terms at the trial point xt (displacements ut) to F_TRIAL (penalty and frozen friction) and the
+        penalty's energy [J] to E_TRIAL; a trial beyond the trust region gets an infinite value."""
+        for p in range(self.n_pairs[None]):
+            i, j = self.pa[p], self.pb[p]
+            ov = self._reach(i, j) - (xt[i] - xt[j]).norm()
+            if ov > 0:
+                e = 0.5 * self._stiffness(i, j) * ov * ov
+                self.owner.sc[S.F_TRIAL] += e
+                self.owner.sc[S.E_TRIAL] += e / (dt * dt)
+            if self.lam[p] > 0:
+                fe, _g, _h = self._friction(p, ut, self.fnormal[p], self.lam[p])
+                self.owner.sc[S.F_TRIAL] += fe
+        if self.move[None] > 0.5 * self.slack[None]:
+            self.owner.sc[S.F_TRIAL] = 1e300
+            self.acc[P_TRUST] += 1.0
+
+    # -- end: restitution and counters ------------------------------------------------------------
+    @ti.func
+    def end(self, x: ti.template(), dt):
+        """Restitution velocity changes ``dv`` for the pairs in contact at the end of the step, and
+        the step's counters."""
+        t = self.terrain
+        for i in range(self.n):
+            self.dv[i] = ti.Vector.zero(float, 3)
+            self.touch[i] = 0
+        for p in range(self.n_pairs[None]):
+            i, j = self.pa[p], self.pb[p]
+            ov = self._reach(i, j) - (x[i] - x[j]).norm()
+            if ov > 0:
+                self.touch[i] += 1
+                self.touch[j] += 1
+                self.acc[P_CONTACT] += 1.0
+                self.acc[P_REMOVED] -= ti.cast(ov, ti.f64)
+                ti.atomic_max(self.acc[P_DEEPEST], ti.cast(ov, ti.f64))
+        for p in range(self.n_pairs[None]):
+            i, j = self.pa[p], self.pb[p]
+            d = x[i] - x[j]
+            dist = d.norm()
+            if self._reach(i, j) - dist > 0 and dist > 0:
+                nrm = d / dist
+                approach = nrm.dot(self.owner.v_prev[i] - self.owner.v_prev[j])
+                if -approach > t.bounce_threshold[None]:
+                    vn = nrm.dot(self.owner.u[i] - self.owner.u[j]) / dt
+                    target = -t.restitution[None] * approach
+                    if target > vn:
+                        inv_i, inv_j = self.model.inv_mass[i], self.model.inv_mass[j]
+                        share = (target - vn) / ti.max(inv_i + inv_j, 1e-30) / ti.cast(
+                            ti.max(self.touch[i], self.touch[j]), float)
+                        self.dv[i] += (share * inv_i) * nrm
+                        self.dv[j] -= (share * inv_j) * nrm
+                        self.acc[P_BOUNCES] += 1.0

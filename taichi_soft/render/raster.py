@@ -1,0 +1,160 @@
+"""An offscreen triangle rasterizer in Taichi kernels: the CPU path to a frame in a few ms.
+
+On a machine without a GPU, GGUI draws through Mesa's lavapipe, whose fixed cost per frame
+(an unlit ground quad at 1280 x 720: ~40 ms) is above the whole frame budget. This module draws
+the same triangles with the same per-vertex lit colours (``lighting.shade``) on every core, in
+two passes over one 64-bit field:
+
+1. ``_raster``, one task per triangle: project its corners with GGUI's view and projection
+   matrices (``camera.py``), find on each row of its screen bounding box the span of pixels it
+   covers, interpolate the corners' colours there with perspective-correct barycentric weights
+   (Gouraud shading, as GGUI draws per-vertex lit colours) and keep, per pixel, the smallest key
+   ``(depth bits << 32) | RGB`` with an atomic min. The key is the depth test, the colour and
+   the tie-break in one: the image does not depend on thread order.
+2. ``_resolve``, one task per row: unpack the colours (background where nothing was drawn),
+   uint8 RGB, top row first, and reset the keys for the next frame.
+
+Triangles are set up in homogeneous coordinates (Olano and Greer, "Triangle scan conversion
+using 2D homogeneous coordinates", 1997): with the corners' (x_pixel w, y_pixel w, w) as the
+columns of M, pixel (px, py) sees the triangle point with barycentric weights b / sum(b),
+b = M^-1 (px, py, 1), at view depth w = 1 / sum(b); all b >= 0 means the point is inside and in
+front. No triangle is clipped against the near plane: points behind the camera get negative
+weights. Depth is view-space w in f32 (relative precision 6e-8); pixels outside
+[Z_NEAR, Z_FAR] are dropped, as GGUI's clip volume does. Pixels are sampled at their centres,
+as Vulkan does; a pixel exactly on an edge shared by two triangles goes to the nearer one,
+then to the smaller colour key (deterministic; Vulkan's top-left rule gives it to one of the
+two, so edge pixels may differ from GGUI's, by the colour step across that edge).
+
+Only triangle meshes are drawn (no lines, no particle spheres: those need GGUI).
+"""
+import numpy as np
+import taichi as ti
+
+from .camera import Z_FAR, Z_NEAR, projection_matrix, view_matrix
+
+EMPTY = (1 << 63) - 1  # key of a pixel that no triangle covers
+mat4f = ti.types.matrix(4, 4, ti.f32)
+vec3f = ti.types.vector(3, ti.f32)
+
+
+@ti.func
+def _corner(verts, mvp, pixel_scale, v):
+    """Homogeneous pixel coordinates (x w, y w, w) of vertex ``v``: row 0 at the top."""
+    c = mvp @ ti.Vector([verts[v][0], verts[v][1], verts[v][2], 1.0], dt=ti.f32)
+    return ti.Vector([(c[0] + c[3]) * 0.5 * pixel_scale[0], (c[3] - c[1]) * 0.5 * pixel_scale[1], c[3]], dt=ti.f32)
+
+
+@ti.data_oriented
+class TaichiRasterizer:
+    """Renders triangle meshes into ``width`` x ``height`` uint8 RGB images with a depth buffer.
+
+    Per frame: ``begin(cam, background)``, ``draw(vertices, indices, colors, cull)`` per mesh,
+    then ``finish()`` returns the image [height, width, 3] (row 0 at the top).
+    """
+
+    def __init__(self, width: int, height: int):
+        self.width, self.height = int(width), int(height)
+        self.key = ti.field(ti.i64, (self.height, self.width))
+        self.key.from_numpy(np.full((self.height, self.width), EMPTY, np.int64))
+        self._mvp = None
+        self._background = (0.0, 0.0, 0.0)
+
+    def begin(self, cam, background):
+        """Start a frame seen by ``cam`` (a ``CameraSpec``) over ``background`` (RGB in [0, 1])."""
+        self._mvp = (projection_matrix(cam, self.width / self.height) @ view_matrix(cam)).astype(np.float32)
+        self._background = tuple(float(c) for c in background)
+
+    def draw(self, vertices, indices, colors, cull: bool = False):
+        """Draw a mesh: f32 vec3 fields ``vertices`` [m] and ``colors`` (lit, RGB in [0, 1]) and an
+        i32 field of triangle corners. ``cull``: skip triangles seen from behind (their corners
+        clockwise on screen), for closed surfaces wound counter-clockwise seen from outside."""
+        self._raster(vertices, indices, colors, int(cull), self._mvp)
+
+    def finish(self) -> np.ndarray:
+        """The frame: uint8 RGB [height, width, 3], row 0 at the top."""
+        image = np.empty((self.height, self.width, 3), np.uint8)
+        self._resolve(vec3f(self._background), image)
+        return image
+
+    # -- kernels -------------------------------------------------------------------------------
+    @ti.kernel
+    def _raster(self, verts: ti.template(), idx: ti.template(), colors: ti.template(), cull: ti.i32, mvp: mat4f):
+        height, width = self.key.shape
+        scale = ti.Vector([ti.f32(width), ti.f32(height)])
+        for t in range(idx.shape[0] // 3):
+            i0, i1, i2 = idx[3 * t], idx[3 * t + 1], idx[3 * t + 2]
+            m = ti.Matrix.cols([_corner(verts, mvp, scale, i0), _corner(verts, mvp, scale, i1),
+                                _corner(verts, mvp, scale, i2)])
+            det = m.determinant()
+            all_front = m[2, 0] > Z_NEAR and m[2, 1] > Z_NEAR and m[2, 2] > Z_NEAR
+            # With every corner in front, det > 0 means clockwise on screen (rows grow downwards):
+            # a closed surface wound counter-clockwise from outside shows its back there.
+            skip = det == 0.0 or (cull != 0 and all_front and det > 0.0)
+            # Screen bounding box of the part in front of the near plane: the corners in front and
+            # the points where the edges cross it.
+            lo = ti.Vector([ti.f32(width), ti.f32(height)])
+            hi = ti.Vector([-1.0, -1.0], dt=ti.f32)
+            for k in ti.static(range(3)):
+                a = ti.Vector([m[0, k], m[1, k], m[2, k]])
+                b = ti.Vector([m[0, (k + 1) % 3], m[1, (k + 1) % 3], m[2, (k + 1) % 3]])
+                if a[2] >= Z_NEAR:
+                    lo = ti.min(lo, a.xy / a[2])
+                    hi = ti.max(hi, a.xy / a[2])
+                if (a[2] - Z_NEAR) * (b[2] - Z_NEAR) < 0.0:
+                    c = a + (Z_NEAR - a[2]) / (b[2] - a[2]) * (b - a)
+                    lo = ti.min(lo, c.xy / Z_NEAR)
+                    hi = ti.max(hi, c.xy / Z_NEAR)
+            # Clamped to just outside the image first: far-off projections would overflow an i32.
+            lo = ti.min(ti.max(lo, -1.0), scale + 1.0)
+            hi = ti.min(ti.max(hi, -1.0), scale + 1.0)
+            # Pixel (col, row) has its centre at (col + 0.5, row + 0.5).
+            c0 = ti.max(0, ti.cast(ti.floor(lo[0] - 0.5), ti.i32) + 1)
+            c1 = ti.min(width - 1, ti.cast(ti.floor(hi[0] - 0.5), ti.i32))
+            r0 = ti.max(0, ti.cast(ti.floor(lo[1] - 0.5), ti.i32) + 1)
+            r1 = ti.min(height - 1, ti.cast(ti.floor(hi[1] - 0.5), ti.i32))
+            if not skip and c0 <= c1 and r0 <= r1:
+                inv = m.inverse()
+                rgb = ti.Matrix.cols([colors[i0], colors[i1], colors[i2]]) * 255.0
+                dx = ti.Vector([inv[0, 0], inv[1, 0], inv[2, 0]])  # d b / d column
+                for row in range(r0, r1 + 1):
+                    b0 = inv @ ti.Vector([0.5, row + 0.5, 1.0], dt=ti.f32)  # b at column 0
+                    # The columns where every weight and their sum are >= 0 (each is linear in the
+                    # column), widened by a pixel: the exact test below decides the edges.
+                    x0, x1 = ti.f32(c0), ti.f32(c1)
+                    for k in ti.static(range(4)):
+                        slope = dx.sum() if k == 3 else dx[k]
+                        offset = b0.sum() if k == 3 else b0[k]
+                        if slope > 0.0:
+                            x0 = ti.max(x0, -offset / slope - 1.0)
+                        elif slope < 0.0:
+                            x1 = ti.min(x1, -offset / slope + 1.0)
+                        elif offset < 0.0:
+                            x1 = -1.0
+                    # Kept within the box before the cast: a near-zero slope gives huge bounds.
+                    x0, x1 = ti.min(x0, ti.f32(c1 + 1)), ti.max(x1, ti.f32(c0 - 1))
+                    for col in range(ti.cast(ti.ceil(x0), ti.i32), ti.cast(ti.floor(x1), ti.i32) + 1):
+                        b = b0 + ti.f32(col) * dx
+                        s = b.sum()
+                        if b[0] >= 0.0 and b[1] >= 0.0 and b[2] >= 0.0 and s > 0.0:
+                            w = 1.0 / s  # view depth of the point seen [m]
+                            if Z_NEAR <= w <= Z_FAR:
+                                c = ti.cast(ti.min(ti.max(rgb @ (b * w) + 0.5, 0.0), 255.0), ti.i64)
+                                packed = (c[0] << 16) | (c[1] << 8) | c[2]
+                                key = (ti.cast(ti.bit_cast(ti.f32(w), ti.i32), ti.i64) << 32) | packed
+                                if key < self.key[row, col]:  # most hidden pixels need no atomic
+                                    ti.atomic_min(self.key[row, col], key)
+
+    @ti.kernel
+    def _resolve(self, background: vec3f, dst: ti.types.ndarray(dtype=ti.u8, ndim=3)):
+        height, width = self.key.shape
+        bg = ti.cast(ti.min(ti.max(background, 0.0), 1.0) * 255.0 + 0.5, ti.u8)
+        for row in range(height):  # one row per task: its bytes are written in order
+            for col in range(width):
+                key = self.key[row, col]
+                if key == ti.i64(EMPTY):
+                    for c in ti.static(range(3)):
+                        dst[row, col, c] = bg[c]
+                else:
+                    for c in ti.static(range(3)):
+                        dst[row, col, c] = ti.cast((key >> (16 - 8 * c)) & 255, ti.u8)
+                    self.key[row, col] = ti.i64(EMPTY)

@@ -1,0 +1,56 @@
+"""Issue 24: an implicit step whose solve fails is counted and reported, never passed off as a result.
+
+A solver whose direction is an ascent direction (the rhs reversed) cannot decrease the step's
+objective: every iteration's line search fails. The driver must count each such step, and
+``health.assess`` must turn the counts into a warning and call the run meaningless (the real
+solvers fail no step: tests/test_f32_implicit.py).
+"""
+import taichi as ti
+
+from taichi_soft.integrators.implicit.health import assess
+from taichi_soft.integrators.implicit.newton import ImplicitEuler
+
+
+@ti.data_oriented
+class _Uphill(ImplicitEuler):
+    """implicit_euler with its Newton direction replaced by an ascent direction."""
+
+    @ti.func
+    def _direction(self, x: ti.template()):
+        for i in range(self.n):
+            self.dx[i] = -self.rhs[i] * self.model.inv_mass[i]
+
+
+def test_failed_line_searches_are_said_and_the_run_exits_non_zero(monkeypatch, capsys, tmp_path):
+    """Through `run`: every step fails, so stderr says so, the summary counts it and calls the
+    result meaningless, and the exit status is EXIT_UNRELIABLE (6), not 0."""
+    import json
+
+    from taichi_soft import cli
+    from taichi_soft.integrators import REGISTRY
+
+    monkeypatch.setitem(REGISTRY, "uphill", _Uphill)
+    monkeypatch.setattr(_Uphill, "name", "uphill")
+    monkeypatch.setattr(cli, "start_taichi", lambda args: None)  # conftest's runtime is running
+    summary = tmp_path / "s.json"
+    code = cli.main(["run", "--set", "body.0.n=3", "--set", "body.0.initial_stretch=[1.2, 0.9, 1.0]",
+                     "--integrator", "uphill", "--dt", "0.01", "--duration", "0.05", "--summary", str(summary)])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_UNRELIABLE == 6, err
+    assert "warning: plane/uphill: 5 of 5 steps ended with a failed line search" in err
+    assert "result is meaningless" in err
+    s = json.loads(summary.read_text())
+    assert s["meaningless"] is True and len(s["solver_warnings"]) == 1
+    assert s["integrator_stats"]["failed_solve_steps"] == 5
+    assert s["integrator_stats"]["failed_solve_max_residual_m_s2"] > ImplicitEuler.OPTIONS["newton_tol"][0]
+    lines, meaningless = assess(s["integrator_stats"])
+    assert meaningless and lines == s["solver_warnings"]
+
+
+def test_a_clamp_on_many_steps_is_reported():
+    lines, meaningless = assess({"steps": 10, "failed_solve_steps": 0, "failed_solve_max_residual_m_s2": 0.0,
+                                 "energy_clamped_steps": 5})
+    assert meaningless and lines == ["the energy clamp acted on 5 of 10 steps (they ended with more energy than "
+                                     "they began with and their velocities were scaled down)"]
+    assert assess({"steps": 100, "failed_solve_steps": 0, "failed_solve_max_residual_m_s2": 0.0,
+                   "energy_clamped_steps": 1}) == ([], False)
