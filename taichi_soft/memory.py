@@ -88,10 +88,11 @@ _SCATTER = _MODEL + _STATE + FieldCounts(3, 0, 2, 0)  # force sums | (k, kd)
 _GATHER = _MODEL + _STATE  # + the padded rows (rows.py), counted by rows_bytes
 _PING_PONG = FieldCounts(6, 0, 0, 0)  # one-stage methods with gathered forces: second x, v
 _RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
-# Implicit solvers (no force-pass buffers), per particle: the objective's 7 vectors and friction
-# block, contact normals, multiplier, end-of-step velocities (43 reals), the PCG's 4 vectors (12),
-# the active-set flags (3 ints); per spring: damper direction and gradient (6 reals).
-_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(55, 3, 6, 0)
+# Implicit solvers (no force-pass buffers), per particle: the objective's 9 vectors (with the
+# displacements u, u_trial the solve iterates on) and friction block, contact normals, multiplier,
+# end-of-step velocities (49 reals), the PCG's 4 vectors (12), the active-set flags (3 ints); per
+# spring: damper direction and gradient (6 reals).
+_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(61, 3, 6, 0)
 _IMPLICIT_EULER = _IMPLICIT + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
 _FAST_MASS_SPRING = _IMPLICIT + FieldCounts(1, 0, 0, 0)  # diagonal of M + L (L-BFGS pairs: _lbfgs_reals)
 FIELDS = {
