@@ -51,7 +51,9 @@ class MeshLattice:
     pairs [n_springs, 2] particle indices, kind [n_springs] (0 stretch, 1 shear, 2 bend) and
     rest [n_springs] lengths in ``lattice`` spring order; h spacing; vertices [nv, 3] and
     triangles [nt, 3] the input surface (outward winding); embed_index / embed_weight [nv, 8]
-    the particles and weights each vertex follows; notes: what was repaired or dropped.
+    (or [nv, NEAREST] when a vertex lies in a boundary cell, rows padded with weight 0) the
+    particles and weights each vertex follows; mesh_volume [m^3]; dropped: particles dropped as
+    too small pieces; notes: what was repaired or dropped.
     """
 
     path: Path
