@@ -21,6 +21,7 @@ from .memory import check_fits
 from .outfiles import probe_writable, remove_stale_temps, write_atomic
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, EXIT_TASKS_FAILED, EXIT_UNRELIABLE = 0, 2, 3, 4, 5, 6
+EXIT_REPLAY_DIFFERS = 7  # demo --replay ended in another state than the recorded session
 # The main job (`python main.py`): the assignment's cube dropped on the plane.
 DEFAULT_SCENE, DEFAULT_INTEGRATOR = "plane", "rk4"
 DEFAULT_COMPARE = "explicit_euler,semi_implicit_euler,midpoint,rk4"
@@ -185,15 +186,16 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
 
 def render_options_from_args(args, scene):
     """Validated ``RenderOptions``: output paths checked (and parents created) before any simulation."""
-    from .render.outputs import VIDEO_SUFFIXES, check_video_size
     from .render.choose import choose_renderer
+    from .render.outputs import VIDEO_SUFFIXES, check_video_size
     from .render.recorder import RenderOptions
 
     render = scene.data["render"]
     width, height = render["resolution"]
     video = check_output_path(args.video, "--video", VIDEO_SUFFIXES)
     check_video_size(video, width, height)
-    choose_renderer(args.renderer, args.particles or args.springs)  # a bad combination: exit 2 now
+    if video or args.frames:  # a bad combination: exit 2 now, before any simulation
+        choose_renderer(args.renderer, args.particles or args.springs)
     usd = getattr(args, "export_usd", None)
     if usd is not None:
         from .render.caches import USD_SUFFIXES, require_usd
@@ -573,14 +575,48 @@ def add_task_args(p: argparse.ArgumentParser):
 
 def cmd_demo(args) -> int:
     """The interactive window (docs/teaching.md); no display or Vulkan: one line, exit 2."""
+    if args.replay is not None:
+        return cmd_demo_replay(args)
+    if args.video is not None:
+        raise UserError("--video goes with --replay (the live window records with V)")
     scene = load_scene_from_args(args)  # bad input fails here, before Taichi starts
     check_fits(scene.data, None, args.precision, args.arch, fast_math=args.fast_math)
     screenshot = check_output_path(args.screenshot, "--screenshot", [".png"])
+    record = check_output_path(args.record, "--record", [".json"])
     start_taichi(args)
     from .demo.app import run_demo
 
     run_demo(args.scene, args.set, args.integrator, args.dt, tuple(scene.data["render"]["resolution"]),
-             frames=args.frames, screenshot=screenshot, paused=args.paused, duration=args.duration)
+             frames=args.frames, screenshot=screenshot, paused=args.paused, duration=args.duration,
+             record=record)
+    return EXIT_OK
+
+
+def cmd_demo_replay(args) -> int:
+    """demo --replay: a recorded session played back without a display into a video."""
+    from . import runtime
+    from .demo.capture import default_path
+    from .demo.session import load_session, replay
+
+    if args.record is not None:
+        raise UserError("--record and --replay exclude each other")
+    data = load_session(args.replay)  # a bad file fails here, before Taichi starts
+    video = check_output_path(args.video, "--video", [".mp4", ".gif"])
+    setup = data["setup"]
+    runtime.init(setup.get("arch", "cpu"), setup.get("precision", "f64"), fast_math=setup.get("fast_math", False))
+    if video is None:
+        video = default_path("replay", Path(str(setup["scene"])).stem, ".mp4")
+    result = replay(data, video)
+    deviation = result["max_deviation_m"]
+    print(f"replay: {result['frames']} frames, {result['steps']} steps to t = {result['time']:.4f} s; video {result['video']}")
+    if deviation is None:
+        print("replay: the session holds no final state to compare with")
+    elif deviation > 0:
+        print(f"replay: the final state differs from the recorded session's by up to {deviation:.3g} m",
+              file=sys.stderr)
+        return EXIT_REPLAY_DIFFERS
+    else:
+        print("replay: final state identical to the recorded session's")
     return EXIT_OK
 
 
@@ -608,9 +644,17 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--resolution", type=_resolution_arg, metavar="WxH", default=[1280, 800],
                         help="window size in pixels (default: 1280x800)")
     p_demo.add_argument("--paused", action="store_true", help="start paused: Space plays (R also resets paused)")
-    # Hidden, for tests and docs: render N frames, save the window to PATH, exit.
-    p_demo.add_argument("--frames", type=int, help=argparse.SUPPRESS)
-    p_demo.add_argument("--screenshot", help=argparse.SUPPRESS)
+    p_demo.add_argument("--record", metavar="SESSION.json",
+                        help="save every input (keys, buttons, sliders, mouse grabs, pokes, pins) with its time to "
+                             "this file when the window closes, for --replay")
+    p_demo.add_argument("--replay", metavar="SESSION.json",
+                        help="play a recorded session back without a window into a video (its scene, settings, "
+                             "backend and precision come from the file; exit 7 if it ends elsewhere than the "
+                             "live session did)")
+    p_demo.add_argument("--video", metavar="PATH",
+                        help="with --replay: the video to write, .mp4 or .gif (default: out/demo-<scene>-replay-<date>.mp4)")
+    p_demo.add_argument("--frames", type=int, metavar="N", help="draw N frames, then close the window (for scripts)")
+    p_demo.add_argument("--screenshot", metavar="PATH.png", help="with --frames: save the last frame to this PNG")
     p_demo.set_defaults(func=cmd_demo)
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
     p_bench.add_argument("study", choices=_Choices(["accuracy", "stability", "speed", "memory", "report", "mesh"],

@@ -252,9 +252,13 @@ class ForceEvaluator:
     # -- shared ------------------------------------------------------------------------------------
     @ti.func
     def particle_accel(self, x: ti.template(), v: ti.template(), i, f_springs, dt):
-        """Acceleration of particle i given its spring force sum; adds gravity and contact."""
+        """Acceleration of particle i given its spring force sum; adds gravity, the grab (if the
+        model has one, ``grab.py``) and contact."""
         m = self.model
-        a = m.gravity[None] * ti.cast(m.inv_mass[i] > 0, float) + f_springs * m.inv_mass[i]
+        f = f_springs
+        if ti.static(m.has_grab()):
+            f += m.grab.force(i, x[i], v[i])
+        a = m.gravity[None] * ti.cast(m.inv_mass[i] > 0, float) + f * m.inv_mass[i]
         if ti.static(self.terrain.has_contact):
             a = self.terrain.contact_accel(i, x[i], v[i], a, dt)
         return a

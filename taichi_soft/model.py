@@ -261,6 +261,9 @@ class Model:
         self.adj_offset = self.adj_other = self.adj_rest = self.adj_group = self.adj_spring = None
         self.adj_split = None  # allocated by ensure_adjacency
         self.gravity = ti.Vector.field(3, float, ())
+        # A hand pulling one particle (``grab.attach``: the demo's mouse); read with ti.static when
+        # a step compiles, so a model without one compiles no grab code.
+        self.grab = None
 
         # Kernel arguments in the run's precision: backends without f64 (Vulkan, Metal) take them.
         self._set_mass(self.mass_np.astype(self.real, copy=False))
@@ -390,6 +393,18 @@ class Model:
         sel = slice(None) if body is None else self.bodies[body].particles
         part = self.mass_np[sel]
         part[part > 0] = float(mass)
+        self._set_mass(self.mass_np.astype(self.real, copy=False))
+        self.mass_version += 1
+
+    def has_grab(self) -> bool:
+        """Whether steps on this model include a grab (``grab.attach``); a compile-time constant."""
+        return self.grab is not None
+
+    def set_masses(self, particles, mass: float):
+        """Set the mass [kg] of the ``particles`` (indices or a mask); 0 pins them (inverse mass 0:
+        forces no longer move them, every integrator keeps them at their own velocity). Bumps
+        ``mass_version``."""
+        self.mass_np[particles] = float(mass)
         self._set_mass(self.mass_np.astype(self.real, copy=False))
         self.mass_version += 1
 

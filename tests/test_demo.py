@@ -298,6 +298,237 @@ def test_demo_without_a_display_says_so_in_one_line(tmp_path):
     assert len(lines) == 1 and "display" in lines[0] and "run --video" in lines[0], proc.stderr
 
 
+# -- the hand: grab, pins, poke, recorded inputs (controller level; the window's mouse below) -------
+def _top_centre(ctl) -> int:
+    x = positions(ctl)
+    return int(np.argmin(np.linalg.norm(x - [x[:, 0].mean(), x[:, 1].max(), x[:, 2].mean()], axis=1)))
+
+
+@pytest.mark.parametrize("name, dt", [("semi_implicit_euler", 1e-3), ("explicit_euler", 1e-3), ("midpoint", 1e-3),
+                                      ("rk4", 1e-3), ("implicit_euler", 1 / 30), ("fast_mass_spring", 1 / 30)])
+def test_a_grabbed_body_hangs_where_the_spring_carries_its_weight(fresh, name, dt):
+    """Lift the level cube by its top-centre particle (no swing): at rest the grab spring carries
+    the whole weight, so the particle hangs M g / k below its target, whatever the integrator."""
+    fresh.set_pose(height=1.0, rotation=0.0)
+    fresh.set_integrator(name)
+    fresh.set_dt(dt)
+    fresh.reset()
+    i = _top_centre(fresh)
+    target = positions(fresh)[i] + [0.0, 1.0, 0.0]
+    fresh.grab_particle(i, target)
+    fresh.step(int(round(8.0 / dt)))
+    assert fresh.message is None, fresh.message
+    sag = target[1] - positions(fresh)[i, 1]
+    weight = fresh.sim.model.mass_np.sum() * 9.8
+    assert sag == pytest.approx(weight / fresh.settings.grab_stiffness, rel=0.01)
+    np.testing.assert_allclose(positions(fresh)[i, [0, 2]], target[[0, 2]], atol=1e-3)
+    fresh.release()
+    fresh.step(int(round(1.0 / dt)))
+    assert positions(fresh)[i, 1] < target[1] - sag - 1.0  # let go: it falls
+
+
+@pytest.mark.parametrize("name, dt", [("semi_implicit_euler", 1e-3), ("explicit_euler", 1e-3), ("midpoint", 1e-3),
+                                      ("rk4", 1e-3), ("implicit_euler", 1 / 30), ("fast_mass_spring", 1 / 30)])
+def test_every_integrator_survives_a_hard_yank(fresh, name, dt):
+    """A corner yanked 3 m up by a 1e5 N/m spring (300 kN at first): no divergence, and the corner
+    ends up at the target (the body's 265 N weight stretches that spring by 3 mm)."""
+    fresh.set_integrator(name)
+    fresh.set_dt(dt)
+    fresh.reset()
+    fresh.step(int(round(1.0 / dt)))  # landed
+    fresh.set_grab_stiffness(1e5)
+    x = positions(fresh)
+    i = int(np.argmax(x[:, 1]))
+    target = x[i] + [0.0, 3.0, 0.0]
+    fresh.grab_particle(i, target)
+    fresh.step(int(round(1.0 / dt)))
+    assert fresh.message is None, fresh.message
+    assert np.isfinite(positions(fresh)).all()
+    assert np.linalg.norm(positions(fresh)[i] - target) < 0.15
+    fresh.set_grab_stiffness(1000.0)
+
+
+def test_explicit_euler_blows_up_on_a_yank_at_a_large_step_and_reset_recovers(fresh):
+    fresh.set_integrator("explicit_euler")
+    fresh.set_dt(2e-3)
+    fresh.step(100)
+    assert fresh.message is None  # stable without the yank
+    fresh.set_grab_stiffness(1e6)  # dt sqrt(k / m) = 2: past explicit Euler's limit
+    i = _top_centre(fresh)
+    fresh.grab_particle(i, positions(fresh)[i] + [0.0, 2.0, 0.0])
+    fresh.step(500)
+    assert fresh.message and fresh.message.startswith("diverged") and "R resets" in fresh.message
+    fresh.set_grab_stiffness(1000.0)
+    fresh.reset()
+    assert fresh.grab.held is None and fresh.message is None and fresh.step(10) == 10
+
+
+@pytest.mark.parametrize("name, dt", [("semi_implicit_euler", 1e-3), ("rk4", 1e-3), ("implicit_euler", 1 / 30),
+                                      ("fast_mass_spring", 1 / 30)])
+def test_pinned_corners_hold_the_body_and_survive_switches(fresh, name, dt):
+    fresh.set_integrator(name)
+    fresh.set_dt(dt)
+    fresh.set_pose(height=1.0, rotation=0.0)
+    fresh.reset()
+    x0 = positions(fresh)
+    top = np.flatnonzero(np.isclose(x0[:, 1], x0[:, 1].max()))
+    edge = top[np.isclose(x0[top, 0], x0[top, 0].min())]  # the top face's edge at the lowest x
+    a, b = int(edge[np.argmin(x0[edge, 2])]), int(edge[np.argmax(x0[edge, 2])])  # its two corners
+    fresh.toggle_pin(a)
+    fresh.toggle_pin(b)
+    assert fresh.pins == {a, b} and fresh.sim.model.mass_np[[a, b]].tolist() == [0.0, 0.0]
+    free = np.setdiff1d(np.arange(len(x0)), [a, b])
+    lowest = np.inf
+    for _ in range(20):  # 2 s: the body swings down about the pinned edge and hangs from it
+        fresh.step(int(round(0.1 / dt)))
+        x = positions(fresh)
+        np.testing.assert_array_equal(x[[a, b]], x0[[a, b]])  # pinned: not moved at all
+        assert x[free, 1].max() < x0[a, 1] + 0.05 and x[free, 1].min() > -1.0  # below its pins, off the floor
+        lowest = min(lowest, x[free, 1].mean())
+    assert fresh.message is None, fresh.message
+    # Hanging at rest, the centre of mass is 0.71 m (half the face diagonal) below the edge: 0.21 m
+    # below where it started level with it.
+    assert lowest < x0[free, 1].mean() - 0.15 and x[free, 1].mean() < x0[free, 1].mean() - 0.05
+    other = "rk4" if name != "rk4" else "midpoint"
+    fresh.set_integrator(other)  # pins survive an integrator switch ...
+    fresh.step(20)
+    np.testing.assert_array_equal(positions(fresh)[[a, b]], x0[[a, b]])
+    fresh.set_terrain("sphere")  # ... and a terrain switch (the body starts again, pinned)
+    assert fresh.pins == {a, b} and fresh.sim.model.mass_np[[a, b]].tolist() == [0.0, 0.0]
+    fresh.set_terrain("plane")
+    fresh.set_integrator(name)
+    fresh.clear_pins()
+    assert not fresh.pins and (fresh.sim.model.mass_np == fresh.settings.particle_mass).all()
+    fresh.step(int(round(0.5 / dt)))
+    assert positions(fresh)[[a, b], 1].max() < x0[[a, b], 1].min() - 0.5  # unpinned: falls
+    fresh.toggle_pin(a)
+    fresh.reset()  # reset clears pins
+    assert not fresh.pins and (fresh.sim.model.mass_np == fresh.settings.particle_mass).all()
+
+
+def test_a_poke_adds_the_slider_speed_along_the_ray(fresh):
+    fresh.set_poke_speed(4.0)
+    v0 = fresh.sim.state.v.to_numpy()[5]
+    fresh.poke(5, [0.0, 0.0, -2.0])
+    np.testing.assert_allclose(fresh.sim.state.v.to_numpy()[5] - v0, [0.0, 0.0, -4.0])
+    fresh.set_poke_speed(3.0)
+
+
+def test_recorded_inputs_replay_to_the_same_state(fresh):
+    from taichi_soft.demo.session import SessionRecorder
+
+    class Camera:
+        position, lookat, up, fov = (0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0
+
+    class App:  # what SessionRecorder reads of the window
+        cam_spec, draw = Camera(), {"surface": True}
+
+    rec = SessionRecorder("unused.json", {})
+    fresh.recorder = rec
+    try:
+        fresh.set_grab_stiffness(5000.0)
+        fresh.grab_particle(3, (0.1, 2.0, 0.3))
+        fresh.step(40)
+        rec.end_frame(App)
+        fresh.drag(np.array([0.5, 2.5, 0.0]))
+        fresh.step(37)
+        fresh.release()
+        fresh.toggle_pin(7)
+        fresh.poke(11, (1.0, 0.0, 0.0))
+        fresh.set_contact(friction=0.5)
+        fresh.step(50)
+        rec.end_frame(App)
+    finally:
+        fresh.recorder = None
+    live = positions(fresh)
+    names = [op[0] for f in rec.frames for op in f["ops"]]
+    assert names == ["set_grab_stiffness", "grab_particle", "step", "drag", "step", "release", "toggle_pin", "poke",
+                     "set_contact", "step"]  # outermost inputs only (set_contact's own work is not logged)
+    fresh.set_grab_stiffness(1000.0)
+    fresh.set_contact(friction=0.3)
+    fresh.reset()
+    for frame in json.loads(json.dumps(rec.frames)):  # through JSON, as a session file
+        for name, args, kwargs in frame["ops"]:
+            getattr(fresh, name)(*args, **kwargs)
+    np.testing.assert_array_equal(positions(fresh), live)
+    fresh.set_grab_stiffness(1000.0)
+    fresh.set_contact(friction=0.3)
+
+
+def test_picking_finds_the_particle_under_the_cursor():
+    from taichi_soft.demo.picking import pick, pick_surface, plane_point, view_ray
+    from taichi_soft.lattice import lattice_points, surface_triangles
+    from taichi_soft.render.camera import CameraSpec, project
+
+    n = 3
+    g = lattice_points(n, 1.0)
+    cam = CameraSpec((3.0, 2.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0)
+    w, h = 800, 600
+    tri = surface_triangles(n)
+    eye = np.asarray(cam.position)
+    for i in range(len(g)):
+        col, row = project(g[i][None], cam, w, h)[0]
+        o, d = view_ray(cam, col / w, 1 - row / h, w / h)
+        assert np.linalg.norm(np.cross(g[i] - o, d)) < 1e-9  # the ray passes through the point
+        visible = pick_surface(g, tri, o + 1e-6 * d, d)
+        if np.linalg.norm(g[i] - eye) <= np.linalg.norm(g - eye, axis=1).min() + 1e-9:
+            assert visible == i  # the corner nearest the camera is picked
+    # a ray just outside the silhouette picks the particle nearest it; a ray past the body: nothing
+    o, d = view_ray(cam, 0.5, 0.5, w / h)
+    assert pick(g, o, d + [0.0, 0.3, 0.0], 0.1) is None
+    p = plane_point(o, d, np.zeros(3), -d)
+    np.testing.assert_allclose(p, [0.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_the_mouse_grabs_pins_and_pokes_and_a_recorded_session_replays(xvfb, tmp_path):
+    """Through the X server (``scripted --hands``): Shift+click two top corners, the body hangs
+    from them for 2 s with the pins fixed; X clears them and it falls; R clears a pin; a top
+    corner dragged 150 px up for 1 s rises and the body follows, released it falls back; a click
+    pokes along the view ray; explicit Euler at dt = 2 ms yanked by a 1e6 N/m spring diverges,
+    says so, and R recovers. The session is recorded, then ``demo --replay`` renders it without a
+    display and ends in exactly the live session's state."""
+    env = dict(os.environ, DISPLAY=xvfb, PYTHONUNBUFFERED="1", PYTHONPATH=str(ROOT))
+    session = tmp_path / "session.json"
+    proc = subprocess.run([sys.executable, "-m", "taichi_soft.demo.scripted", "--hands", "--yank",
+                           "explicit_euler:0.002:1e6", "--record", str(session), "--resolution", "1024x640",
+                           "--set", "body.0.n=3", "--set", "body.0.size=1.0", "--set", "body.0.center=[0, 0.5, 0]",
+                           "--set", "body.0.rotation.degrees=0", "--set", "contact.restitution=0"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    if "Vulkan" in proc.stderr and proc.returncode != 0 and "checks" not in proc.stdout:
+        pytest.skip(f"no Vulkan device: {proc.stderr.strip().splitlines()[-1]}")
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
+    assert lines, (proc.returncode, proc.stdout[-2000:], proc.stderr[-2000:])
+    report = json.loads(lines[-1])
+    assert {k: v for k, v in report["checks"].items() if v != "ok"} == {}
+    assert len(report["checks"]) == 7 and report["actions"]["yank"] == "diverged, reset" and proc.returncode == 0
+    live = json.loads(session.read_text())
+    assert live["final"]["steps"] == report["final"]["steps"] > 0
+    ops = {op[0] for frame in live["frames"] for op in frame["ops"]}
+    assert {"toggle_pin", "clear_pins", "grab_particle", "drag", "release", "poke", "restart"} <= ops
+
+    video = tmp_path / "replay.mp4"
+    env.pop("DISPLAY")  # headless
+    proc = subprocess.run([sys.executable, str(ROOT / "main.py"), "demo", "--replay", str(session), "--video",
+                           str(video)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "final state identical to the recorded session's" in proc.stdout
+    assert video.stat().st_size > 10_000
+
+
+def test_replay_refuses_what_it_cannot_play(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "something else"}')
+    for args, says in ((["--replay", str(tmp_path / "missing.json")], "no such file"),
+                       (["--replay", str(bad)], "not a taichi-soft demo session"),
+                       (["--replay", str(bad), "--record", str(tmp_path / "s.json")], "exclude each other"),
+                       (["--record", str(tmp_path / "s.txt")], "expected a file ending in .json"),
+                       (["--video", str(tmp_path / "v.mp4")], "--video goes with --replay")):
+        proc = subprocess.run([sys.executable, str(ROOT / "main.py"), "demo", *args], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=120)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and says in lines[0], (args, proc.stderr)
+
+
 def test_duration_stops_the_demo_there_and_r_restarts(fresh):
     """Issue 24: `demo --duration` was accepted and ignored; the simulation now stops at it."""
     fresh.settings.duration = 0.05

@@ -1,9 +1,10 @@
 """The demo window: the scene as the renderer draws it, ImGui controls, keys and the HUD.
 
-One frame: read keys, take the steps the ``Pacer`` allows, pull the state onto the draw fields,
-draw terrain, body and springs with ``render.renderer.SimulationView``, overlay the HUD (large
-outlined text and the energy plot, ``hud``) and the ImGui control panel, show. Everything the
-controls change goes through ``DemoController``; nothing here touches physics directly.
+One frame: read keys and the mouse (``mouse.MouseHand``: grab, drag, poke, pin), take the steps
+the ``Pacer`` allows, pull the state onto the draw fields, draw terrain, body, springs and markers
+(pins, the grab), overlay the HUD (large outlined text and the energy plot, ``hud``) and the ImGui
+control panel, show. Everything the controls change goes through ``DemoController``; nothing here
+touches physics directly. ``frametimer.FrameTimer`` times each part of the frame (T shows it).
 """
 from __future__ import annotations
 
@@ -21,6 +22,9 @@ from .canvas2d import Batch2D
 from .capture import Recording, default_path
 from .controller import DemoController, ladder
 from .display import open_demo_window
+from .frametimer import FrameTimer
+from .marks import Marks
+from .mouse import MouseHand
 from .pacing import Pacer
 
 PANEL_X, PANEL_W = 0.7, 0.3  # ImGui control panel: right 30 % of the window, in two columns
@@ -31,6 +35,8 @@ HUD_MARGIN = 0.2  # fraction of the height the HUD text covers at the top (defau
 DRAW_KEYS = {"f": "surface", "o": "particles", "j": "stretch", "k": "shear", "l": "bend"}
 DT_RANGE = (1e-5, 5e-2)  # s: what the dt buttons may reach
 K_RANGE = (1.0, 1e7)  # N/m: what the stiffness buttons may reach
+GRAB_K_RANGE = (10.0, 1e6)  # N/m: the grab stiffness buttons (1e6: explicit methods blow up at dt = 2 ms)
+POKE_RANGE = (0.0, 20.0)  # m/s: the poke slider
 
 
 def _changed(new: float, old: float) -> bool:
@@ -69,6 +75,12 @@ class DemoApp:
         self._shot_request = None  # screenshot asked for this frame (True or a path): saved once drawn
         self.recording: Recording | None = None
         self.stats: dict = {}
+        self.hand = MouseHand(controller, self.size)
+        self.marks = Marks()
+        self.timer = FrameTimer(sync=ti.sync)
+        self.show_timing = False  # T: the frame timer's line in the HUD
+        self.cam_spec: CameraSpec | None = None  # the camera of the frame on screen (picking uses it)
+        self.session = None  # a ``session.SessionRecorder`` when recording inputs (--record)
         self._generation = None
         self._overlay_v = ti.Vector.field(2, ti.f32, OVERLAY_VERTICES)
         self._overlay_c = ti.Vector.field(3, ti.f32, OVERLAY_VERTICES)
@@ -81,6 +93,7 @@ class DemoApp:
             return
         self._generation = self.ctl.generation
         self.view = SimulationView(self.ctl.sim, surface=True, particles=True, springs=True)
+        self.hand.cancel()
         self.reset_camera()
 
     def _default_camera(self) -> CameraSpec:
@@ -95,6 +108,7 @@ class DemoApp:
         self._fov = spec.fov
         self._distance = float(np.linalg.norm(np.subtract(spec.position, spec.lookat)))
         self._com = None
+        self.cam_spec = spec
         aim_camera(self.camera, spec)
 
     def _update_camera(self, com):
@@ -113,31 +127,38 @@ class DemoApp:
         # track_user_inputs keeps the look-at point 1 m ahead; the lights are placed from the
         # camera-to-target distance, so aim at the original distance to keep the lighting fixed.
         spec = CameraSpec(tuple(eye), tuple(eye + self._distance * front), tuple(c.curr_up.to_numpy()), self._fov)
+        self.cam_spec = spec
         apply_camera(self.scene, c, spec)  # the renderer's camera and lights
 
     # -- one frame --------------------------------------------------------------------------
     def frame(self):
-        self._handle_keys()
-        self._sync_view()
+        timer = self.timer
+        with timer.part("input"):
+            self._handle_input()
+            self._sync_view()
         ctl = self.ctl
         s = ctl.settings
         stepped = 0
-        if s.paused or ctl.message:
-            self.pacer.pause()
-        else:
-            n = self.pacer.plan(ctl.sim.dt, s.slow_motion)
-            start = time.perf_counter()
-            stepped = ctl.step(n)
-            self.pacer.record(stepped, time.perf_counter() - start, ctl.sim.dt)
-        measures = ctl.sample()
-        if stepped:
-            self.stats = ctl.solver_stats()  # iteration counts of the steps just taken
-        if not ctl.message:
-            self.view.update()  # after a divergence the last good shape stays on screen
-        self._update_camera(measures["center_of_mass"] if measures else None)
-        self._draw_scene()
-        self._draw_hud()
-        self._draw_panel()
+        with timer.part("simulation"):
+            if s.paused or ctl.message:
+                self.pacer.pause()
+            else:
+                n = self.pacer.plan(ctl.sim.dt, s.slow_motion)
+                start = time.perf_counter()
+                stepped = ctl.step(n)
+                self.pacer.record(stepped, time.perf_counter() - start, ctl.sim.dt)
+        with timer.part("read-back"):
+            measures = ctl.sample()
+            if stepped:
+                self.stats = ctl.solver_stats()  # iteration counts of the steps just taken
+            if not ctl.message:
+                self.view.update()  # after a divergence the last good shape stays on screen
+                self.marks.update(ctl)
+        with timer.part("draw"):
+            self._update_camera(measures["center_of_mass"] if measures else None)
+            self._draw_scene()
+            self._draw_hud()
+            self._draw_panel()
         # A screenshot is saved only now that everything is drawn: saving draws the frame (GGUI
         # ends the ImGui frame there), so saving while keys are read gives a blank image and
         # saving from a button, inside the panel's ImGui window, crashed Taichi.
@@ -147,10 +168,36 @@ class DemoApp:
         if self.recording is not None:
             self.recording.add(self.window)
 
+    def show(self):
+        """Show the frame drawn (GGUI renders it now) and close the frame timer's frame."""
+        if self.session is not None:
+            self.session.end_frame(self)
+        with self.timer.part("show"):
+            self.window.show()
+        self.timer.end_frame()
+
+    def replay_frame(self, camera):
+        """Draw a frame of a replayed session (``session.replay``): the state its inputs left, seen
+        by the recorded ``camera`` = [eye, lookat, up, fov]."""
+        self._sync_view()
+        ctl = self.ctl
+        ctl.sample()
+        self.stats = ctl.solver_stats() or self.stats
+        if not ctl.message:
+            self.view.update()
+            self.marks.update(ctl)
+        eye, lookat, up, fov = camera
+        self.cam_spec = CameraSpec(tuple(eye), tuple(lookat), tuple(up), float(fov))
+        apply_camera(self.scene, self.camera, self.cam_spec)
+        self._draw_scene()
+        self._draw_hud()
+        self._draw_panel()
+
     def _draw_scene(self):
         v = self.view
         v.show_surface, v.show_particles = self.draw["surface"], self.draw["particles"]
         v.show_springs = {kind for kind in SPRING_KINDS if self.draw[kind]}
+        self.marks.draw(self.scene, 2.5 * v.particle_radius)  # queued before draw_view renders the scene
         draw_view(self.canvas, self.scene, v)
 
     def _draw_hud(self):
@@ -158,7 +205,9 @@ class DemoApp:
         notice = self.notice
         if self.recording is not None:
             notice = f"recording {self.recording.path} (V stops)"
-        hud.draw_hud(batch, self.ctl, self.pacer, self.stats, notice, width=round(PANEL_X * self.size[0]))
+        extra = [self.timer.text()] if self.show_timing else []
+        hud.draw_hud(batch, self.ctl, self.pacer, self.stats, notice, width=round(PANEL_X * self.size[0]),
+                     hand=hud.hand_text(self.ctl, self.hand), extra=extra)
         verts, colors = batch.triangles()
         n = min(len(verts), OVERLAY_VERTICES) // 3 * 3
         # Unused vertices sit off-canvas: their triangles are clipped away.
@@ -170,31 +219,50 @@ class DemoApp:
         self.canvas.triangles(self._overlay_v, per_vertex_color=self._overlay_c)
 
     # -- controls ---------------------------------------------------------------------------
-    def _handle_keys(self):
-        for e in self.window.get_events(ti.ui.PRESS):
-            key = e.key
-            if key == ti.ui.ESCAPE:
-                self.window.running = False
-            elif key == ti.ui.SPACE:
-                self.ctl.toggle_pause()
-            elif key == "n":
-                self._single_step()
-            elif key == "r":
-                self.ctl.restart()
-            elif key == "m":
-                self.ctl.set_slow_motion(0.25 if self.ctl.settings.slow_motion == 1.0 else 1.0)
-            elif key == "c":
-                self.reset_camera()
-            elif key == "p":
-                self.screenshot()  # saved at the end of this frame
-            elif key == "v":
-                self.toggle_recording()
-            elif key in DRAW_KEYS:
-                self.draw[DRAW_KEYS[key]] = not self.draw[DRAW_KEYS[key]]
+    def _handle_input(self):
+        """Keys and the left mouse button since the last frame, then the drag to the cursor."""
+        w = self.window
+        # Two queries (GGUI's events carry no press/release flag): a press and its release within
+        # one frame act in that order, a quick click (a poke).
+        presses, releases = w.get_events(ti.ui.PRESS), w.get_events(ti.ui.RELEASE)
+        for e in presses:
+            self._press(e.key)
+        if any(e.key == ti.ui.LMB for e in releases):
+            self.hand.release()
+        if self.hand.held is not None:
+            self.hand.motion(w.get_cursor_pos(), self.cam_spec)
 
-    def _single_step(self):
-        self.ctl.settings.paused = True
-        self.ctl.step(1)
+    def _press(self, key):
+        if key == ti.ui.LMB:
+            cursor = self.window.get_cursor_pos()
+            # The panel's ImGui widgets take clicks over it; the scene the rest.
+            if cursor[0] < PANEL_X and self.cam_spec is not None and not self.ctl.message:
+                self.hand.press(cursor, self.cam_spec, shift=self.window.is_pressed(ti.ui.SHIFT))
+            return
+        if key == ti.ui.ESCAPE:
+            self.window.running = False
+        elif key == ti.ui.SPACE:
+            self.ctl.toggle_pause()
+        elif key == "n":
+            self.ctl.single_step()
+        elif key == "r":
+            self.ctl.restart()
+        elif key == "m":
+            self.ctl.set_slow_motion(0.25 if self.ctl.settings.slow_motion == 1.0 else 1.0)
+        elif key == "c":
+            self.reset_camera()
+        elif key == "p":
+            self.screenshot()  # saved at the end of this frame
+        elif key == "v":
+            self.toggle_recording()
+        elif key in DRAW_KEYS:
+            self.draw[DRAW_KEYS[key]] = not self.draw[DRAW_KEYS[key]]
+        elif key == "x":
+            self.ctl.clear_pins()
+        elif key == "i":
+            self.hand.pin_mode = not self.hand.pin_mode
+        elif key == "t":
+            self.show_timing = not self.show_timing
 
     def _choices(self, g, title: str, options: list[str], current: str) -> str | None:
         """One button per option under ``title``, the current one marked "> name <"; returns
@@ -221,7 +289,7 @@ class DemoApp:
             if g.button("Pause (Space)" if not s.paused else "Play (Space)"):
                 ctl.toggle_pause()
             if g.button("Single step (N)"):
-                self._single_step()
+                ctl.single_step()
             if g.button("Reset, paused (R)"):
                 ctl.restart()
             slow = g.checkbox("Slow motion (M)", s.slow_motion < 1.0)
@@ -260,6 +328,13 @@ class DemoApp:
             self._slider(g, "friction coefficient", "fric", s.friction, 0.0, 1.5, lambda v: ctl.set_contact(friction=v))
             self._slider(g, "particle mass [kg]", "mass", s.particle_mass, 0.05, 10.0, ctl.set_particle_mass)
             self._slider(g, "gravity [m/s^2]", "g", s.gravity, 0.0, 30.0, ctl.set_gravity)
+            g.text("Mouse (left button on the body):")
+            g.text(f"grab k = {s.grab_stiffness:g} N/m")
+            self._ladder_buttons(g, "grab k", s.grab_stiffness, GRAB_K_RANGE, ctl.set_grab_stiffness, "N/m")
+            self._slider(g, "poke speed [m/s]", "poke", s.poke_speed, *POKE_RANGE, ctl.set_poke_speed)
+            self.hand.pin_mode = g.checkbox("pin mode (I)", self.hand.pin_mode)
+            if g.button(f"Clear {len(ctl.pins)} pins (X)###clearpins"):
+                ctl.clear_pins()
             g.text("Start pose (used at reset):")
             self._slider(g, "drop height [m]", "height", s.height, -2.0, 30.0, lambda v: ctl.set_pose(height=v))
             self._slider(g, "rotation [deg]", "rot", s.rotation, -90.0, 90.0, lambda v: ctl.set_pose(rotation=v))
@@ -316,21 +391,48 @@ class DemoApp:
                     self.screenshot(screenshot)  # saved at the end of the last frame
                 self.frame()
                 done += 1
-                self.window.show()
+                self.show()
         finally:
             if self.recording is not None:
                 self.toggle_recording()
+            self.close_session()
             self.window.destroy()
+
+    def close_session(self):
+        """Write the recorded session (--record), if one is being recorded; says where on stdout."""
+        if self.session is not None:
+            session, self.session = self.session, None
+            self.ctl.recorder = None
+            path = session.close(self.ctl)
+            print(f"demo: session of {len(session.frames)} frames saved to {path}")
 
 
 def run_demo(scene="plane", overrides=(), integrator=None, dt=None, size=(1280, 800), frames=None, screenshot=None,
-             paused=False, duration=None):
+             paused=False, duration=None, record=None):
     """Open the window, build the simulation and run (Taichi must be initialised); ``paused``:
-    start paused (Space plays); ``duration`` [s]: stop the simulation there (None: run on).
+    start paused (Space plays); ``duration`` [s]: stop the simulation there (None: run on);
+    ``record``: save the session's inputs to this JSON file at the end (``session``).
 
     The window comes first: without a display or Vulkan that fails in one line before seconds
     of kernel compilation.
     """
     window = open_demo_window("taichi-soft demo", size)
     ctl = DemoController(scene, overrides, integrator, dt, paused=paused, duration=duration)
-    DemoApp(ctl, size, window).run(frames, screenshot)
+    app = DemoApp(ctl, size, window)
+    if record is not None:
+        start_session(app, record)
+    app.run(frames, screenshot)
+
+
+def start_session(app: DemoApp, path):
+    """Record ``app``'s inputs from now on into the session file ``path`` (written when it closes)."""
+    from .. import runtime
+    from .session import SessionRecorder
+
+    ctl = app.ctl
+    setup = {"scene": ctl.scene_name, "overrides": list(ctl.overrides), "integrator": ctl.settings.integrator,
+             "dt": ctl.settings.dt, "paused": ctl.settings.paused, "duration": ctl.settings.duration,
+             "resolution": list(app.size),
+             **{k: v for k, v in (runtime.current() or {}).items() if k in ("arch", "precision", "fast_math")}}
+    app.session = SessionRecorder(path, setup)
+    ctl.recorder = app.session

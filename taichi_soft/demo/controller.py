@@ -9,19 +9,29 @@ run-time parameters (fields and kernel arguments), so a slider never triggers a 
   are compiled for that shape only, see ``taichi_soft.terrain``); every other setting is carried
   over and the cube starts again from its initial state;
 * dt, stiffness, damping, restitution, friction, particle mass, gravity: live, next step;
-* drop height and rotation: change the initial pose, applied on ``reset()``.
+* drop height and rotation: change the initial pose, applied on ``reset()``;
+* the hand (``grab.py``): ``grab`` a particle toward a point, ``drag`` the point, ``release``;
+  ``poke`` a particle (a velocity kick); ``toggle_pin`` / ``clear_pins`` (a pinned particle has
+  inverse mass 0 and stays where it is). Pins are kept across integrator and terrain switches;
+  ``reset`` clears them and lets go of the grab.
+
+Every method that changes the simulation is an *input* (``@recorded``): with a ``recorder`` set
+(``session.SessionRecorder``), each outermost call is logged with its arguments, so a session
+replays call for call, steps included (``step(n)`` is an input too).
 
 A step that diverges, or any error the engine raises while stepping, pauses the simulation and
 leaves a one-line ``message``; ``reset()`` clears it. The controller never raises from a step.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import UserError
+from ..grab import attach as attach_grab
 from ..integrators import REGISTRY, make_integrator
 from ..lattice import SPRING_KINDS, rotation_matrix
 from ..scene import load_scene
@@ -30,6 +40,25 @@ from ..terrain import KINDS as TERRAIN_KINDS
 
 HISTORY = 240  # energy samples kept for the HUD plot (one per frame that stepped: a few seconds)
 ENERGY_KEYS = ("kinetic_energy", "spring_energy", "gravity_energy", "total_energy")
+
+
+def recorded(method):
+    """Mark a ``DemoController`` method as an input: its outermost calls go to ``recorder``."""
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        outer = self._depth == 0
+        self._depth += 1
+        try:
+            result = method(self, *args, **kwargs)
+        finally:
+            self._depth -= 1
+        if outer and self.recorder is not None:
+            self.recorder.input(method.__name__, list(args), kwargs)
+        return result
+
+    wrapper.recorded = True
+    return wrapper
 
 
 def ladder(value: float, direction: int) -> float:
@@ -61,6 +90,8 @@ class Settings:
     paused: bool = False
     slow_motion: float = 1.0  # simulated seconds per wall-clock second wanted (1 = real time)
     duration: float | None = None  # [s] simulated time after which the demo stops (None: runs on)
+    grab_stiffness: float = 1000.0  # [N/m] of the spring pulling a grabbed particle to the cursor
+    poke_speed: float = 3.0  # [m/s] velocity a poke adds to the poked particle
 
 
 @dataclass
@@ -126,6 +157,9 @@ class DemoController:
         self.history = EnergyHistory()
         self.last_measures: dict | None = None
         self.generation = 0  # bumped whenever ``sim`` is replaced (views must be rebuilt)
+        self.pins: set[int] = set()  # pinned particle indices (inverse mass 0)
+        self.recorder = None  # set by a recording session: logs every input (``recorded``)
+        self._depth = 0  # nesting of input calls (only the outermost is logged)
         self._build(base)
 
     # -- construction -----------------------------------------------------------------------
@@ -141,6 +175,7 @@ class DemoController:
         # is not checked against the terrain here.
         sim = Simulation(scene, integrator=s.integrator, dt=s.dt, options=self._options(s.integrator, scene),
                          check=False)
+        self.grab = attach_grab(sim.model)  # before any step compiles: the steps include its force
         self.sim = sim
         self._integrators = {s.integrator: sim.integrator}
         self._scene_x0 = sim.model.x0_np.copy()  # the scene's own pose, before height / rotation
@@ -162,6 +197,7 @@ class DemoController:
         self.set_contact(s.restitution, s.friction)
         self.set_particle_mass(s.particle_mass)
         self.set_gravity(s.gravity)
+        self.set_grab_stiffness(s.grab_stiffness)
 
     # -- choices ----------------------------------------------------------------------------
     @staticmethod
@@ -172,6 +208,7 @@ class DemoController:
     def terrain_kinds() -> list[str]:
         return list(TERRAIN_KINDS)
 
+    @recorded
     def set_integrator(self, name: str):
         """Continue from the current state with integrator ``name`` (from the start if diverged)."""
         if name == self.sim.integrator_name:
@@ -185,26 +222,33 @@ class DemoController:
         if self.sim.diverged or self.message:
             self.reset()
 
+    @recorded
     def set_terrain(self, kind: str):
         """Rebuild the simulation on terrain ``kind`` (its default geometry), same settings, reset."""
         if kind == self.sim.terrain.kind:
             return
         scene = self._load(self.overrides + [f"terrain.kind={kind}"])
+        pins = sorted(self.pins)
         self._build(scene)
         self.settings.terrain = kind
+        for i in pins:  # the same particles, pinned where the new start puts them
+            self.toggle_pin(i)
 
     # -- live parameters --------------------------------------------------------------------
+    @recorded
     def set_dt(self, dt: float):
         """Time step [s] from the next step on."""
         self.settings.dt = float(dt)
         self.sim.set_dt(dt)
 
+    @recorded
     def set_stiffness(self, kind: str, k: float):
         """Stiffness [N/m] of spring ``kind`` in every body."""
         self.settings.stiffness[kind] = float(k)
         for b in range(len(self.sim.model.bodies)):
             self.sim.model.set_spring_params(b, kind, k=float(k))
 
+    @recorded
     def set_damping(self, damping: float):
         """Damper coefficient [N s/m] of every spring kind in every body."""
         self.settings.damping = float(damping)
@@ -212,6 +256,7 @@ class DemoController:
             for kind in SPRING_KINDS:
                 self.sim.model.set_spring_params(b, kind, damping=float(damping))
 
+    @recorded
     def set_contact(self, restitution: float | None = None, friction: float | None = None):
         """Restitution [0, 1] and Coulomb friction coefficient of the terrain contact."""
         if restitution is not None:
@@ -220,6 +265,7 @@ class DemoController:
             self.settings.friction = float(friction)
         self.sim.terrain.set_contact(restitution=restitution, friction=friction)
 
+    @recorded
     def set_particle_mass(self, mass: float):
         """Mass [kg] of every particle (pinned particles, inverse mass 0, stay pinned)."""
         self.settings.particle_mass = float(mass)
@@ -227,12 +273,15 @@ class DemoController:
             return
         self.sim.model.set_particle_mass(float(mass))
         self._mass_applied = mass
+        self.grab.set_stiffness(self.settings.grab_stiffness)  # its damper follows the mass
 
+    @recorded
     def set_gravity(self, magnitude: float):
         """Gravity [m/s^2] along the scene's direction (straight down for a weightless scene)."""
         self.settings.gravity = float(magnitude)
         self.sim.model.set_gravity(self._g_dir * float(magnitude))
 
+    @recorded
     def set_pose(self, height: float | None = None, rotation: float | None = None):
         """Drop height [m] and rotation [degrees] of the first body; take effect at ``reset()``."""
         if height is not None:
@@ -240,25 +289,33 @@ class DemoController:
         if rotation is not None:
             self.settings.rotation = float(rotation)
 
+    @recorded
     def set_slow_motion(self, factor: float):
         """Simulated seconds per wall-clock second wanted, in (0, 1]."""
         self.settings.slow_motion = min(max(float(factor), 1e-3), 1.0)
 
     # -- running ----------------------------------------------------------------------------
+    @recorded
     def toggle_pause(self):
         self.settings.paused = not self.settings.paused
 
+    @recorded
     def restart(self):
         """What R does: back to the start (``reset``) and paused, so the class can predict what
         happens before Space plays it."""
         self.reset()
         self.settings.paused = True
 
+    @recorded
     def reset(self):
         """Back to the initial state with the current height and rotation; clears a divergence
         (and the pause it caused)."""
         if self.message:
             self.settings.paused = False
+        self.grab.release()
+        if self.pins:
+            self.sim.model.set_masses(sorted(self.pins), self.settings.particle_mass)
+            self.pins.clear()
         model = self.sim.model
         model.x0_np, model.v0_np = self._initial_pose()
         self.sim.reset()
@@ -284,6 +341,7 @@ class DemoController:
             v0[info.particles] = np.asarray(body["velocity"]) + np.cross(body["angular_velocity"], local)
         return x0, v0
 
+    @recorded
     def step(self, n: int = 1) -> int:
         """Take up to ``n`` steps now (even while paused); returns the steps taken.
 
@@ -307,6 +365,69 @@ class DemoController:
             self._stop(f"diverged at t = {s.diverged_at:.4f} s with {s.integrator_name} at dt = {s.dt:g} s; "
                        f"try dt <= {s.suggest_dt():g} (R resets)")
         return done
+
+    @recorded
+    def single_step(self):
+        """What N does: pause and take one step."""
+        self.settings.paused = True
+        self.step(1)
+
+    # -- the hand ---------------------------------------------------------------------------
+    @recorded
+    def set_grab_stiffness(self, k: float):
+        """Stiffness [N/m] of the spring that pulls a grabbed particle toward the cursor (its damper
+        critically damps the particle alone on it, ``Grab.set_stiffness``)."""
+        self.settings.grab_stiffness = float(k)
+        self.grab.set_stiffness(float(k))
+
+    @recorded
+    def set_poke_speed(self, speed: float):
+        """Speed [m/s] a poke adds to the poked particle."""
+        self.settings.poke_speed = float(speed)
+
+    @recorded
+    def grab_particle(self, i: int, target):
+        """Pull particle ``i`` toward ``target`` [m] from the next step on (a pinned one stays put)."""
+        self.grab.hold(int(i), target)
+
+    @recorded
+    def drag(self, target):
+        """Move the grabbed particle's target [m]."""
+        self.grab.move(target)
+
+    @recorded
+    def release(self):
+        self.grab.release()
+
+    @recorded
+    def poke(self, i: int, direction):
+        """Add ``poke_speed`` [m/s] along ``direction`` (any length) to particle ``i``'s velocity."""
+        d = np.asarray(direction, dtype=np.float64)
+        norm = float(np.linalg.norm(d))
+        if norm == 0 or int(i) in self.pins or self.message:
+            return
+        v = self.sim.state.v
+        v[int(i)] = tuple(np.asarray(v[int(i)].to_numpy(), dtype=np.float64) + self.settings.poke_speed * d / norm)
+
+    @recorded
+    def toggle_pin(self, i: int):
+        """Pin particle ``i`` where it is (inverse mass 0, at rest), or unpin it if pinned."""
+        i = int(i)
+        model = self.sim.model
+        if i in self.pins:
+            self.pins.discard(i)
+            model.set_masses([i], self.settings.particle_mass)
+        else:
+            self.pins.add(i)
+            model.set_masses([i], 0.0)
+            self.sim.state.v[i] = (0.0, 0.0, 0.0)
+
+    @recorded
+    def clear_pins(self):
+        """Unpin every pinned particle (they fall with the rest)."""
+        if self.pins:
+            self.sim.model.set_masses(sorted(self.pins), self.settings.particle_mass)
+            self.pins.clear()
 
     def _stop(self, message: str):
         self.message = message

@@ -22,8 +22,10 @@ PLOT_TITLE = "change since t = 0:"  # the plot shows each energy minus its value
 TEXT = (0.96, 0.97, 0.98)
 ALERT = (1.0, 0.35, 0.30)
 PANEL = (0.08, 0.09, 0.12)
-HELP = ("Space play/pause  N step  R reset+pause  M slow-mo  F O J K L draw  P screenshot  V record  "
-        "right-drag look, WASD/QE move, C camera  Esc quit")
+# Every key and mouse binding, one line each (the window fits each to its free width).
+HELP = ("Space play/pause  N step  R reset+pause  M slow-mo  F O J K L draw  P screenshot  V record  T timing  Esc quit",
+        "Left-drag the body: pull  click: poke  Shift+click (or I, pin mode): pin/unpin  X: clear pins  "
+        "Right-drag: look  WASD/QE: move  C: camera")
 
 
 def energy_text(value: float) -> str:
@@ -53,6 +55,19 @@ def solver_text(stats: dict) -> str | None:
         if key in stats and stats.get("steps", 1):
             parts.append(f"{label} {stats[key]:.1f}")
     return ("iterations per step: " + ", ".join(parts)) if parts else None
+
+
+def hand_text(controller, hand=None) -> str | None:
+    """What the mouse holds: the pulled particle and the spring's stiffness, pins, pin mode."""
+    parts = []
+    held = controller.grab.held
+    if held is not None:
+        parts.append(f"pulling particle {held} (k = {controller.settings.grab_stiffness:g} N/m)")
+    if controller.pins:
+        parts.append(f"{len(controller.pins)} pinned")
+    if hand is not None and hand.pin_mode:
+        parts.append("PIN MODE: click pins/unpins (I ends)")
+    return " | ".join(parts) if parts else None
 
 
 def status_lines(controller, pacer, stats: dict | None = None) -> list[str]:
@@ -90,11 +105,12 @@ def energy_plot(history, box) -> list[tuple[str, np.ndarray]]:
 
 
 def draw_hud(batch: Batch2D, controller, pacer, stats: dict | None = None, notice: str | None = None,
-             width: int | None = None):
-    """Lay out the HUD in ``batch``: status top left, alert, energy plot, help line; ``width``
-    [px] is the part of the window left free by the control panel (default: all of it)."""
+             width: int | None = None, hand: str | None = None, extra=()):
+    """Lay out the HUD in ``batch``: status top left (then ``hand``, what the mouse holds, and any
+    ``extra`` lines), alert, energy plot, help lines; ``width`` [px] is the part of the window left
+    free by the control panel (default: all of it)."""
     w, h = width or batch.width, batch.height
-    lines = status_lines(controller, pacer, stats)
+    lines = status_lines(controller, pacer, stats) + ([hand] if hand else []) + list(extra)
     alert = controller.message.split("; ") if controller.message else []  # "what happened" / "what to do"
     big = max(12, round(h / 28))  # 29 px in an 800-pixel window: readable from the back of a room
     while big > 12 and max([text_size(t, big)[0] for t in lines] + [text_size(t, big, "bold")[0] for t in alert]) > w - big:
@@ -115,9 +131,10 @@ def draw_hud(batch: Batch2D, controller, pacer, stats: dict | None = None, notic
     legend_w = sum(text_size(label, small)[0] + 2 * pad for label in (PLOT_TITLE, *ENERGY_LABELS.values()))
     pw, ph = max(round(0.30 * w), legend_w + pad), round(0.20 * h)
     help_size = small
-    while help_size > 8 and text_size(HELP, help_size)[0] > w - 2 * pad:  # fit the free width
+    while help_size > 8 and max(text_size(t, help_size)[0] for t in HELP) > w - 2 * pad:  # fit the free width
         help_size -= 1
-    help_h = text_size(HELP, help_size)[1] + 2 * pad
+    line_h = text_size("Ag", help_size)[1]
+    help_h = len(HELP) * line_h + 2 * pad
     px0, py1 = pad, h - help_h - pad
     py0 = py1 - ph
     batch.rect(px0, py0, px0 + pw, py1, PANEL)
@@ -133,4 +150,5 @@ def draw_hud(batch: Batch2D, controller, pacer, stats: dict | None = None, notic
     for key, points in energy_plot(controller.history, (px0 + pad, top, px0 + pw - pad, py1 - pad)):
         batch.polyline(points, ENERGY_COLORS[key], width=max(1.5, h / 400))
     batch.rect(0, h - help_h, w, h, PANEL)
-    batch.text(HELP, pad, h - help_h + pad, help_size, TEXT)
+    for k, text in enumerate(HELP):
+        batch.text(text, pad, h - help_h + pad + k * line_h, help_size, TEXT)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..render.camera import project
 from ..render.window import window_rgb
 from .app import DRAW_KEYS, PANEL_X
 
@@ -92,7 +93,7 @@ class Session:
             self.app.frame()
             if capture:
                 self.image = window_rgb(self.app.window)  # the frame as drawn, panel included
-            self.app.window.show()
+            self.app.show()
 
     def press(self, key: str, frames: int = 2):
         self.x.key(key, True)
@@ -131,6 +132,28 @@ class Session:
         c = self.app.camera
         return c.curr_position.to_numpy().astype(float), c.curr_lookat.to_numpy().astype(float)
 
+    def pixel(self, point) -> tuple[int, int]:
+        """The window pixel (x, y) where world ``point`` [m] is drawn now."""
+        col, row = project(np.asarray(point, float)[None], self.app.cam_spec, self.width, self.height)[0]
+        return round(col), round(row)
+
+    def positions(self) -> np.ndarray:
+        return self.ctl.sim.state.x.to_numpy().astype(float)
+
+    def run_for(self, seconds: float, max_frames: int = 5000, during=None):
+        """Frames until the simulation has advanced ``seconds`` [s] (it must be playing);
+        ``during(k)`` is called before frame k."""
+        if self.ctl.settings.paused:
+            raise AssertionError("the simulation is paused")
+        end = self.ctl.sim.time + seconds - 1e-9
+        for k in range(max_frames):
+            if self.ctl.sim.time >= end or self.ctl.message:
+                return
+            if during is not None:
+                during(k)
+            self.frames(1)
+        raise AssertionError(f"{seconds} s did not pass in {max_frames} frames (t = {self.ctl.sim.time})")
+
 
 def _check_screenshot(path, notice: str | None) -> None:
     from PIL import Image
@@ -147,18 +170,39 @@ def _latest(pattern: str, before: set) -> Path | None:
     return new[-1] if new else None
 
 
-def check_every_control(s: Session) -> dict:
-    """Press every advertised key and click panel buttons; returns control -> "ok" or the failure."""
-    ctl, app = s.ctl, s.app
+def run_checks(app, checks) -> dict:
+    """Run each (name, fn) in turn while the window is open; returns name -> "ok" or the failure
+    (every check is reported, not just the first failure)."""
     results = {}
-
-    def check(name, fn):
+    for name, fn in checks:
+        if not app.window.running:
+            results[name] = "not run: the window closed"
+            continue
         try:
             fn()
             results[name] = "ok"
-        except Exception as e:  # noqa: BLE001 - report every control, not just the first failure
+        except Exception as e:  # noqa: BLE001
             results[name] = f"{type(e).__name__}: {e}".splitlines()[0]
+    return results
 
+
+def _escape_check(s: Session):
+    def escape_quits():
+        s.x.key("Escape", True)
+        s.frames(1)
+        s.x.key("Escape", False)
+        try:
+            s.frames(2)
+        except AssertionError:
+            pass
+        assert not s.app.window.running, "Esc did not close the window"
+
+    return escape_quits
+
+
+def check_every_control(s: Session) -> dict:
+    """Press every advertised key and click panel buttons; returns control -> "ok" or the failure."""
+    ctl, app = s.ctl, s.app
     s.calibrate()
     s.pointer_to_scene()
     s.frames(3)
@@ -273,28 +317,209 @@ def check_every_control(s: Session) -> dict:
         s.press("r")
         assert ctl.sim.time == 0.0 and ctl.settings.paused, (ctl.sim.time, ctl.settings.paused)
 
-    def escape_quits():
-        s.x.key("Escape", True)
-        s.frames(1)
-        s.x.key("Escape", False)
-        try:
-            s.frames(2)
-        except AssertionError:
-            pass
-        assert not app.window.running, "Esc did not close the window"
+    escape_quits = _escape_check(s)
 
-    for name, fn in (("start paused", start_paused), ("Space plays", space_plays),
-                     ("Space pauses, plot history kept", pause_keeps_history), ("N single step", n_steps),
-                     ("M slow motion", m_slow_motion), ("F O J K L draw toggles", draw_keys),
-                     ("W A S D Q E move the camera", camera_keys), ("right-drag turns the view", right_drag),
-                     ("C resets the camera", c_resets_camera), ("P screenshot", p_screenshot),
-                     ("Screenshot button", screenshot_button), ("integrator button", integrator_button),
-                     ("V records", v_records), ("R resets, paused", r_restarts_paused)):
-        if not app.window.running:
-            results[name] = "not run: the window closed"
-            continue
-        check(name, fn)
-    return results, escape_quits
+    checks = (("start paused", start_paused), ("Space plays", space_plays),
+              ("Space pauses, plot history kept", pause_keeps_history), ("N single step", n_steps),
+              ("M slow motion", m_slow_motion), ("F O J K L draw toggles", draw_keys),
+              ("W A S D Q E move the camera", camera_keys), ("right-drag turns the view", right_drag),
+              ("C resets the camera", c_resets_camera), ("P screenshot", p_screenshot),
+              ("Screenshot button", screenshot_button), ("integrator button", integrator_button),
+              ("V records", v_records), ("R resets, paused", r_restarts_paused))
+    return run_checks(app, checks), escape_quits
+
+
+def top_corners(s: Session) -> list[int]:
+    """The body's four top corners (the 8 particles farthest from its centre, the 4 highest),
+    nearest the camera first."""
+    x = s.positions()
+    c = x.mean(axis=0)
+    corners = np.argsort(-np.linalg.norm(x - c, axis=1))[:8]
+    top = corners[np.argsort(-x[corners, 1])[:4]]
+    eye = np.asarray(s.app.cam_spec.position)
+    return [int(i) for i in top[np.argsort(np.linalg.norm(x[top] - eye, axis=1))]]
+
+
+def check_hands(s: Session, yank_integrator: str = "explicit_euler", yank_dt: float = 2e-3,
+                yank_k: float = 1e5) -> tuple[dict, dict]:
+    """The mouse on the body, through real X input: pin two top corners and let it hang, clear the
+    pins, drag a top corner up and let go, poke, and a hard yank with ``yank_integrator`` at
+    ``yank_dt`` [s] and grab stiffness ``yank_k`` [N/m]. The scene must start with the body in the
+    air above the floor, paused. Returns (check -> "ok" or the failure, {"yank": "held" or
+    "diverged, reset"})."""
+    ctl, app = s.ctl, s.app
+    s.calibrate()
+    s.pointer_to_scene()
+    s.frames(3)
+
+    def click_particle(i, shift=False):
+        s.move(*s.pixel(s.positions()[i]))
+        s.frames(1)
+        if shift:
+            s.x.key("Shift", True)
+            s.frames(1)
+        s.x.button("LMB", True)
+        s.frames(1)
+        s.x.button("LMB", False)
+        s.frames(1)
+        if shift:
+            s.x.key("Shift", False)
+            s.frames(1)
+
+    def pins_hold_and_hang():
+        assert ctl.settings.paused and ctl.sim.time == 0.0, "the session must start paused"
+        a, b = top_corners(s)[:2]
+        click_particle(a, shift=True)
+        click_particle(b, shift=True)
+        assert ctl.pins == {a, b}, f"Shift+click pinned {sorted(ctl.pins)}, not the corners {a}, {b}"
+        assert ctl.sim.time == 0.0, "pinning stepped the simulation"
+        x0 = s.positions()
+        s.press(" ")
+        s.run_for(2.0)
+        assert ctl.message is None, ctl.message
+        x = s.positions()
+        moved = float(np.abs(x[[a, b]] - x0[[a, b]]).max())
+        assert moved <= 1e-9, f"the pinned corners moved {moved:.3g} m"
+        free = np.setdiff1d(np.arange(len(x)), [a, b])
+        pin_y = x0[[a, b], 1].mean()
+        assert x[free, 1].mean() < pin_y - 0.2, "the body does not hang below its pins"
+        # hanging, not fallen: the free particles stay within the body's reach of the pins
+        assert x[free, 1].min() > pin_y - 2.5 * np.ptp(x0[:, 1]) - 0.5, "the body fell away from its pins"
+        s.pins_y = pin_y
+
+    def x_clears_pins_and_it_falls():
+        com0 = s.positions()[:, 1].mean()
+        s.press("x")
+        assert not ctl.pins, f"X left pins {sorted(ctl.pins)}"
+        s.run_for(0.3)
+        assert s.positions()[:, 1].mean() < com0 - 0.1, "after X the body did not fall"
+        s.run_for(2.0)  # lands and settles for the drag
+
+    def reset_clears_pins():
+        click_particle(top_corners(s)[0], shift=True)
+        assert len(ctl.pins) == 1, ctl.pins
+        s.press("r")
+        assert not ctl.pins and ctl.sim.time == 0.0, (ctl.pins, ctl.sim.time)
+        s.press(" ")
+        s.run_for(2.5)  # falls, lands, settles
+
+    def drag_up_and_release():
+        corner = top_corners(s)[0]
+        x0 = s.positions()
+        px, py = s.pixel(x0[corner])
+        s.move(px, py)
+        s.frames(1)
+        s.x.button("LMB", True)
+        s.frames(1)
+        assert ctl.grab.held == corner, f"the press grabbed {ctl.grab.held}, not the corner {corner}"
+        start = ctl.sim.time
+        s.run_for(1.0, during=lambda k: s.move(px, py - min(150, 15 * (k + 1))))
+        x1 = s.positions()
+        target = ctl.grab.target.to_numpy()
+        assert target[1] > x0[corner, 1] + 0.3, f"150 px up put the target only at {target}"
+        assert x1[corner, 1] > x0[corner, 1] + 0.2, f"the corner rose only {x1[corner, 1] - x0[corner, 1]:.3f} m"
+        others = np.setdiff1d(np.arange(len(x1)), [corner])
+        assert x1[others, 1].mean() > x0[others, 1].mean() + 0.05, "the body did not follow the corner"
+        assert ctl.sim.time >= start + 1.0
+        s.x.button("LMB", False)
+        s.frames(1)
+        assert ctl.grab.held is None, "release did not let go"
+        s.run_for(1.5)
+        x2 = s.positions()
+        assert x2[corner, 1] < x1[corner, 1] - 0.15, "the corner did not fall back"
+        assert abs(x2[:, 1].mean() - x0[:, 1].mean()) < 0.1, "the body did not come back to rest on the floor"
+
+    def click_pokes():
+        corner = top_corners(s)[0]
+        s.press(" ")  # pause: the kick is read before any step damps it
+        assert ctl.settings.paused
+        v0 = ctl.sim.state.v.to_numpy()[corner].astype(float)
+        eye = np.asarray(app.cam_spec.position)
+        click_particle(corner)
+        dv = ctl.sim.state.v.to_numpy()[corner] - v0
+        ray = s.positions()[corner] - eye
+        ray /= np.linalg.norm(ray)
+        speed = ctl.settings.poke_speed
+        assert abs(np.linalg.norm(dv) - speed) < 1e-6 * speed, f"the poke added {np.linalg.norm(dv)} m/s, not {speed}"
+        assert dv @ ray > 0.99 * speed, "the poke is not along the view ray"
+        assert ctl.grab.held is None
+        s.press(" ")
+        s.run_for(0.5)
+
+    def hard_yank():
+        ctl.set_integrator(yank_integrator)  # set up as the panel would: integrator, dt, grab k
+        ctl.set_dt(yank_dt)
+        ctl.set_grab_stiffness(yank_k)
+        corner = top_corners(s)[0]
+        px, py = s.pixel(s.positions()[corner])
+        s.move(px, py)
+        s.frames(1)
+        s.x.button("LMB", True)
+        s.frames(1)
+        s.move(px, max(py - 300, 5))
+        s.run_for(1.0)
+        s.x.button("LMB", False)
+        s.frames(2)
+        assert app.window.running, "the window closed"
+        if ctl.message:  # diverged: the demo says so and R recovers
+            assert ctl.message.startswith("diverged") and "R resets" in ctl.message, ctl.message
+            s.press("r")
+            assert ctl.message is None and ctl.sim.time == 0.0
+            s.press(" ")
+            s.run_for(0.2)
+            assert np.isfinite(s.positions()).all()
+            s.result = "diverged, reset"
+        else:
+            assert np.isfinite(s.positions()).all(), "non-finite state without a divergence message"
+            s.result = "held"
+
+    checks = (("Shift+click pins two corners, it hangs", pins_hold_and_hang),
+              ("X clears the pins, it falls", x_clears_pins_and_it_falls),
+              ("R clears pins", reset_clears_pins),
+              ("drag a top corner up, release", drag_up_and_release),
+              ("click pokes", click_pokes),
+              (f"hard yank with {yank_integrator} at dt {yank_dt:g} s", hard_yank))
+    return run_checks(app, checks), {"yank": getattr(s, "result", None)}
+
+
+def measure_timing(s: Session, blocks: int = 4, frames: int = 30) -> dict:
+    """The frame timer's breakdown [ms, medians] while playing, alternating blocks of ``frames``
+    frames with the body left alone and with its top face's centre grabbed and dragged (the pointer moving
+    every frame); also the press frames' input part (picking) and each block's cost per step."""
+    ctl, app = s.ctl, s.app
+    s.calibrate()
+    s.pointer_to_scene()
+    if ctl.settings.paused:
+        s.press(" ")
+    s.frames(10)  # warm: every kernel compiled
+    out = {"idle": [], "drag": [], "press_input_ms": []}
+    for b in range(2 * blocks):
+        mode = "idle" if b % 2 == 0 else "drag"
+        if mode == "drag":
+            x = s.positions()
+            top = int(np.argmin(np.linalg.norm(x - [x[:, 0].mean(), x[:, 1].max(), x[:, 2].mean()], axis=1)))
+            px, py = s.pixel(x[top])  # the top face's centre: well inside the silhouette
+            s.move(px, py)
+            s.frames(1)
+            s.x.button("LMB", True)
+            s.frames(1)
+            out["press_input_ms"].append(1e3 * app.timer.frames[-1].get("input", 0.0))
+            assert ctl.grab.held is not None, "the press grabbed nothing"
+        app.timer.frames.clear()
+        steps0 = ctl.sim.steps
+        for k in range(frames):
+            if mode == "drag":
+                s.move(px + (k % 10) * 3, py - 3 * k)
+            s.frames(1)
+        m = app.timer.medians_ms()
+        m["ms_per_step"] = m["simulation"] * frames / max(ctl.sim.steps - steps0, 1)
+        out[mode].append(m)
+        if mode == "drag":
+            s.x.button("LMB", False)
+            s.frames(2)
+    summary = {mode: {k: float(np.median([m[k] for m in out[mode]])) for k in out[mode][0]} for mode in ("idle", "drag")}
+    summary["press_input_ms"] = out["press_input_ms"]
+    return summary
 
 
 def soak(s: Session, minutes: float, seed: int = 0) -> dict:
@@ -349,16 +574,35 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", default="1024x640")
     p.add_argument("--minutes", type=float, default=0.0, help="soak test length after the checks")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--hands", action="store_true",
+                   help="check the mouse on the body (pins, drag, poke, yank) instead of the keys and buttons")
+    p.add_argument("--yank", default="explicit_euler:0.002:1e5", metavar="INTEGRATOR:DT:K",
+                   help="--hands: the hard yank's integrator, dt [s] and grab stiffness [N/m]")
+    p.add_argument("--record", metavar="SESSION.json", help="record the session's inputs (as demo --record)")
+    p.add_argument("--timing", action="store_true",
+                   help="measure the frame timer's breakdown idle and while dragging; print it and exit")
     args = p.parse_args(argv)
     size = parse_resolution(args.resolution)
     init("cpu", "f64")
     window = open_demo_window("taichi-soft demo", size, fps_limit=1000)
     app = DemoApp(DemoController(args.scene, args.set, "semi_implicit_euler", paused=True), size, window)
+    if args.record:
+        from .app import start_session
+
+        start_session(app, args.record)
     xin = XInput()
     session = Session(app, xin)
     report = {"checks": {}, "actions": {}}
     try:
-        report["checks"], escape = check_every_control(session)
+        if args.timing:
+            report["timing"] = measure_timing(session)
+            escape = _escape_check(session)
+        elif args.hands:
+            name, dt, k = args.yank.split(":")
+            report["checks"], report["actions"] = check_hands(session, name, float(dt), float(k))
+            escape = _escape_check(session)
+        else:
+            report["checks"], escape = check_every_control(session)
         if args.minutes > 0 and app.window.running:
             try:
                 report["actions"] = soak(session, args.minutes, args.seed)
@@ -374,8 +618,10 @@ def main(argv=None) -> int:
     finally:
         if app.recording is not None:
             app.toggle_recording()
+        app.close_session()
         app.window.destroy()
         xin.close()
+    report["final"] = {"time": app.ctl.sim.time, "steps": app.ctl.sim.steps}
     print(json.dumps(report))
     return 0 if all(v == "ok" for v in report["checks"].values()) else 1
 

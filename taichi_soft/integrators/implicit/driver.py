@@ -452,10 +452,12 @@ class ImplicitIntegrator(Objective, ContactSet, Integrator):
         return bad - start + 1 if self.diverged else n_steps
 
     def _sync_masses(self):
-        """Total free mass [kg] into its field when ``Model.set_particle_mass`` changed the masses."""
+        """Total free mass [kg] into its field when the masses changed (``Model.set_particle_mass``,
+        ``set_masses``: pinning one ends the step's translation invariance)."""
         if self._mass_version != self.model.mass_version:
             mass = self.model.mass_np
             self.total_mass[None] = float(np.sum(mass[mass > 0])) or 1.0
+            self.translation_free[None] = int(not self.terrain.has_contact and not (mass <= 0).any())
             self._mass_version = self.model.mass_version
 
     def reset(self):

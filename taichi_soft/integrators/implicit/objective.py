@@ -1,13 +1,14 @@
 """The step's objective: inertia, springs, dampers and contact friction, its gradient and values.
 
-    g(x) = 1/2 (x - y)^T M (x - y) + h^2 E(x) + h^2 D(x) + sum_held mu lam_i f0(|u_t,i|)
+    g(x) = 1/2 (x - y)^T M (x - y) + h^2 E(x) + h^2 D(x) + sum_held mu lam_i f0(|u_t,i|) [+ grab]
     y = x_n + h v_n + h^2 g_grav,  u = x - x_n
 
 E: Hooke springs, sum_s k_s/2 (|x_a - x_b| - r_s)^2. D: the dampers' Rayleigh dissipation with
 each damper direction l_s frozen at x_n, h^2 D = sum_s h kd_s/2 (l_s . (u_a - u_b))^2 (its
 gradient / h^2 is the seed's damper force at v = u/h). Friction: the lagged dissipative potential
 of IPC (Li et al. 2020) with each held particle's multiplier lam_i (h^2 |F_n|) frozen for the
-solve (see contact.py); f0 is the Huber function with length friction_velocity * h.
+solve (see contact.py); f0 is the Huber function with length friction_velocity * h. A model with
+a grab (grab.py) adds its spring (counted in E) and damper for the grabbed particle.
 
 Every term is zero or minimal at x_n except inertia and springs, and the friction term is zero at
 x_n for any multiplier, so g(x) <= g(x_n) bounds the energy a step can store whatever the
@@ -42,7 +43,9 @@ class Objective:
         self.x_trial = vec(n)  # line-search trial point [m]
         self.spring_dir = vec(m)  # damper direction l_s at x_n (frozen over the step)
         self.spring_grad = vec(m)  # d(h^2 (E + D))/dx_a per spring [kg m]
-        self.fric_hess = ti.Matrix.field(3, 3, float, n)  # Hessian block of a held particle's friction [kg]
+        # Hessian block of a particle's terms outside the springs [kg]: a held particle's friction,
+        # the grab (grab.py); the constant matrix of fast_mass_spring does not contain them.
+        self.fric_hess = ti.Matrix.field(3, 3, float, n)
         self.fric_eps = ti.field(float, ())  # friction smoothing length friction_velocity * h [m]
         self.friction_velocity = ti.field(float, ())  # [m/s], from the option (a field: read in kernels)
         self.total_mass = ti.field(float, ())  # sum of free particles' masses [kg] (see _sync_masses)
@@ -138,6 +141,8 @@ class Objective:
                         self.fric_hess[i] += self.pairs.hess[i]
                     else:
                         self.fric_hess[i] = self.pairs.hess[i]
+                if ti.static(self.model.has_grab()):
+                    gi = self._grab_gradient(i, x[i], gi, dt)
                 r = -gi
                 if ti.static(self.terrain.has_contact):
                     if self.active[i]:
@@ -177,6 +182,10 @@ class Objective:
                     self.pairs.track(ui)  # the trust region
                 diff = ui - self.yd[i]
                 self.sc[S.F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff)
+                if ti.static(self.model.has_grab()):
+                    gv, _gg, _gh = m.grab.step_terms(i, xi, self.x_prev[i], dt)
+                    self.sc[S.F_TRIAL] += gv
+                    self.sc[S.E_TRIAL] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
                     if self.lam[i] > 0:  # held when lam was frozen, hence held here too
                         fe, _fg, _fh = self._friction(i, xi, self.trial_normal[i], self.lam[i])
@@ -203,7 +212,11 @@ class Objective:
         however early the iteration stopped (an inexact solve leaves a momentum error of the order of
         its residual; between colliding bodies it was 5e-4 of a body's momentum). It only lowers g."""
         m = self.model
-        if self.translation_free[None]:
+        free = self.translation_free[None]
+        if ti.static(m.has_grab()):
+            if m.grab.active():  # a hand holds a particle at a point: not invariant
+                free = 0
+        if free:
             self.shift[None] = ti.Vector.zero(float, 3)
             for i in range(self.n):
                 self.shift[None] += m.mass[i] * (self.yd[i] - self.u[i])
@@ -211,6 +224,21 @@ class Objective:
             for i in range(self.n):
                 self.u[i] += c
                 x[i] = self.x_prev[i] + self.u[i]
+
+    @ti.func
+    def _grab_gradient(self, i, xi, gi, dt):
+        """gi plus the grab's gradient (grab.py); its Hessian goes with the friction block. While
+        particle i is grabbed it counts in ``N_ACTIVE``: fast_mass_spring's prefactored matrix lacks
+        the grab's diagonal term, so it takes its held-particle path (the factor as a
+        preconditioner), as for a particle held by friction."""
+        _gv, gg, gh = self.model.grab.step_terms(i, xi, self.x_prev[i], dt)
+        fh = ti.Matrix.zero(float, 3, 3)
+        if ti.static(self.terrain.has_contact or self._has_pairs()):
+            fh = self.fric_hess[i]  # this gradient's friction and pair blocks (written just before)
+        self.fric_hess[i] = fh + gh * ti.Matrix.identity(float, 3)
+        if gh > 0:
+            self.sc[S.N_ACTIVE] += 1.0
+        return gi + gg
 
     @ti.func
     def _residual(self):

@@ -12,7 +12,8 @@ RES_PREV = 2  # residual [m/s^2] of the last gradient (release margin of the act
 F_CUR = 3  # objective at the current iterate [kg m^2]
 F_TRIAL = 4  # objective at the line-search trial point
 DEC = 5  # grad . (x_trial - x): first-order decrease predicted for the trial [kg m^2]
-N_ACTIVE = 6  # particles held on the terrain, plus body-body pairs in contact, after the last gradient
+N_ACTIVE = 6  # particles held on the terrain, plus body-body pairs in contact, plus a grabbed particle
+    # (grab.py), after the last gradient
 ALPHA = 7  # line-search step fraction of the trial
 STEP = 8  # largest particle move of the last accepted update [m]
 STEP_TRIAL = 9  # largest particle move of the trial [m]

@@ -1,0 +1,85 @@
+"""From the cursor to the body: the view ray under a pixel, the particle it hits, the drag point.
+
+A press picks on the drawn surface first (the triangle the ray crosses first, its nearest corner);
+a ray that misses the surface but passes close to a particle (just outside an edge or a corner)
+picks the particle nearest the ray.
+
+Pure numpy (no window): the camera is a ``render.camera.CameraSpec`` (GGUI's conventions: vertical
+``fov``, the image spanning the whole window), the cursor GGUI's ``get_cursor_pos()`` (u, v) in
+[0, 1], v up.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+PICK_RADIUS = 0.75  # lattice spacings: a ray through any point of a lattice face passes this close
+# to one of the face's corner particles (half the diagonal is 0.71 spacings)
+
+
+def view_ray(cam, u: float, v: float, aspect: float) -> tuple[np.ndarray, np.ndarray]:
+    """(origin [m], unit direction) of the ray through cursor (u, v) of a window of ``aspect``
+    = width / height, for camera ``cam``."""
+    eye = np.asarray(cam.position, dtype=np.float64)
+    forward = np.subtract(cam.lookat, eye)
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, cam.up)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    half = math.tan(math.radians(cam.fov) / 2)
+    d = forward + (2 * u - 1) * half * aspect * right + (2 * v - 1) * half * up
+    return eye, d / np.linalg.norm(d)
+
+
+def pick(points: np.ndarray, origin: np.ndarray, direction: np.ndarray, radius: float) -> int | None:
+    """The particle of ``points`` [n, 3] nearest the ray, of those within ``radius`` [m] of it and
+    in front of its origin (a cursor just outside the silhouette, on an edge or a corner, picks
+    that edge or corner). None if the ray passes every particle farther than ``radius``."""
+    rel = points - origin
+    depth = rel @ direction
+    miss2 = np.einsum("ij,ij->i", rel, rel) - depth * depth
+    hit = (depth > 0) & (miss2 <= radius * radius)
+    if not hit.any():
+        return None
+    candidates = np.flatnonzero(hit)
+    return int(candidates[np.argmin(miss2[candidates])])
+
+
+def pick_surface(points: np.ndarray, triangles: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> int | None:
+    """The particle the ray hits on the drawn surface: the nearest ``triangles`` [m, 3] (particle
+    indices) crossed in front of the origin (Moller-Trumbore, all triangles at once), and of that
+    triangle the corner nearest the hit point. None if the ray crosses no triangle."""
+    a, b, c = points[triangles[:, 0]], points[triangles[:, 1]], points[triangles[:, 2]]
+    e1, e2 = b - a, c - a
+    p = np.cross(direction, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = origin - a
+    u = np.einsum("ij,ij->i", s, p) * inv
+    q = np.cross(s, e1)
+    v = (q @ direction) * inv
+    t = np.einsum("ij,ij->i", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+    if not hit.any():
+        return None
+    k = np.flatnonzero(hit)[np.argmin(t[hit])]
+    at = origin + t[k] * direction
+    corners = triangles[k]
+    return int(corners[np.argmin(np.linalg.norm(points[corners] - at, axis=1))])
+
+
+def plane_point(origin: np.ndarray, direction: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
+    """Where the ray meets the plane through ``point`` with ``normal``; None if it runs parallel to
+    the plane or the plane is behind the ray's origin."""
+    denom = float(np.dot(direction, normal))
+    if abs(denom) < 1e-9:
+        return None
+    t = float(np.dot(np.subtract(point, origin), normal)) / denom
+    return None if t <= 0 else origin + t * direction
+
+
+def lattice_spacing(model) -> float:
+    """The finest rest spacing [m] between neighbouring particles over the model's bodies."""
+    return min(b.spec.size / (b.spec.n - 1) for b in model.bodies)
