@@ -270,6 +270,16 @@ def _fill(mesh, notes: list, n: int, size: float | None, scale: float | None, pa
                        float(mesh.volume) * factor**3, dropped, notes)
 
 
+def particle_surface(m: MeshLattice) -> np.ndarray:
+    """The input surface in particle terms, [t, 3] local particle indices: each mesh vertex
+    replaced by the particle it follows with the largest weight, triangles that collapse dropped.
+    A coarse, outward-wound stand-in for the drawn surface where particles are needed (picking)."""
+    main = m.embed_index[np.arange(len(m.embed_index)), np.argmax(m.embed_weight, axis=1)]
+    tri = main[m.triangles].astype(np.int64)
+    keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+    return tri[keep]
+
+
 @functools.lru_cache(maxsize=8)
 def _cached(path: str, stamp: tuple, n: int, size: float | None, scale: float | None) -> MeshLattice:
     mesh, notes = load_mesh(Path(path))
