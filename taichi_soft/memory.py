@@ -142,15 +142,16 @@ def scene_counts(scene_data: dict) -> tuple[int, int]:
 
 def _surface_host_bytes(scene_data: dict) -> int:
     """Host bytes of the bodies' surfaces: a cube's 12 (n-1)^2 triangles as int64 triples; a mesh
-    body's triangles (int64) and vertices (float64) and each vertex's embedding (int32 index and
-    float64 weight per followed particle)."""
+    body's triangles (int64, twice: the mesh's and ``BodyInfo.surface``), vertices (float64) and
+    each vertex's embedding (index and float64 weight per followed particle)."""
     total = 0
     for b in scene_data["body"]:
         m = _mesh_lattice(b)
         if m is None:
             total += 12 * (int(b["n"]) - 1) ** 2 * 3 * 8
         else:
-            total += m.triangles.nbytes + m.vertices.nbytes + m.embed_index.nbytes + m.embed_weight.nbytes
+            # + its particle-index stand-in (meshbody.particle_surface), at most one triple per triangle
+            total += 2 * m.triangles.nbytes + m.vertices.nbytes + m.embed_index.nbytes + m.embed_weight.nbytes
     return total
 
 
