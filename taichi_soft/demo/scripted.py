@@ -152,6 +152,8 @@ class Session:
     def run_for(self, seconds: float, max_frames: int = 5000, during=None):
         """Frames until the simulation has advanced ``seconds`` [s] (it must be playing);
         ``during(k)`` is called before frame k."""
+        if self.ctl.message:  # stopped (diverged): nothing more will run
+            return
         if self.ctl.settings.paused:
             raise AssertionError("the simulation is paused")
         end = self.ctl.sim.time + seconds - 1e-9
