@@ -14,7 +14,7 @@ The result also embeds the input surface in the lattice (``embedding``): each me
 fixed weighted sum of particles, so the renderer and exporters draw the real surface as it
 deforms (render/embedded.py). A vertex in a lattice cell with all 8 corners uses trilinear
 weights; in a boundary cell that misses corners it uses the minimum-norm affine weights over the
-8 nearest particles, which still reproduce its rest position exactly.
+16 particles nearest its cell's centre, which still reproduce its rest position exactly.
 
 Everything here is host-side numpy (no Taichi); results are cached per file, size and n, so a
 scene's validation, its memory check and the model builder read and fill the mesh once.
@@ -51,7 +51,9 @@ class MeshLattice:
     pairs [n_springs, 2] particle indices, kind [n_springs] (0 stretch, 1 shear, 2 bend) and
     rest [n_springs] lengths in ``lattice`` spring order; h spacing; vertices [nv, 3] and
     triangles [nt, 3] the input surface (outward winding); embed_index / embed_weight [nv, 8]
-    the particles and weights each vertex follows; notes: what was repaired or dropped.
+    (or [nv, NEAREST] when a vertex lies in a boundary cell, rows padded with weight 0) the
+    particles and weights each vertex follows; mesh_volume [m^3]; dropped: particles dropped as
+    too small pieces; notes: what was repaired or dropped.
     """
 
     path: Path
@@ -187,16 +189,23 @@ def _embedding(vertices, points, grid, origin, h):
     if broken.any():
         k = min(NEAREST, len(points))
         v = vertices[broken]
-        _, near = cKDTree(points).query(v, k=k)
+        # One particle set per boundary cell: the k particles nearest its centre c. Minimum-norm
+        # affine weights: sum w_i x_i = v and sum w_i = 1 (exact at rest whenever the k particles
+        # are not coplanar), the smallest such w, so no particle dominates needlessly:
+        # w = M [(v - c) / h; 1] with M = A^T (A A^T)^-1 and A = [(x_i - c) / h; 1] (4 x k), one
+        # 4 x 4 inverse per cell. The tiny ridge keeps a coplanar set (a one-layer patch)
+        # solvable, as a least-squares fit.
+        flat, which = np.unique(np.ravel_multi_index(cell[broken].T, dims), return_inverse=True)
+        cells = np.stack(np.unravel_index(flat, dims), axis=1)
+        centre = origin + (cells + 0.5) * h
+        _, near = cKDTree(points).query(centre, k=k)
         near = near.reshape(-1, k)
-        # Minimum-norm affine weights: sum w_i (x_i - v) = 0 and sum w_i = 1 (exact at rest whenever
-        # the k particles are not coplanar), the smallest such w, so no particle dominates needlessly:
-        # w = A^T (A A^T)^-1 e4 with A = [x_i - v; 1] (4 x k), a 4 x 4 solve per vertex. The tiny
-        # ridge keeps a coplanar set (a one-layer patch) solvable, as a least-squares fit.
-        a = np.concatenate([(points[near] - v[:, None]).transpose(0, 2, 1) / h, np.ones((len(v), 1, k))], axis=1)
-        gram = a @ a.transpose(0, 2, 1) + 1e-12 * np.eye(4)
-        e4 = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]), (len(v), 4))
-        w = (a.transpose(0, 2, 1) @ np.linalg.solve(gram, e4[..., None]))[..., 0]
+        a = np.concatenate([(points[near] - centre[:, None]).transpose(0, 2, 1) / h, np.ones((len(cells), 1, k))],
+                           axis=1)
+        m = a.transpose(0, 2, 1) @ np.linalg.inv(a @ a.transpose(0, 2, 1) + 1e-12 * np.eye(4))  # [cells, k, 4]
+        b_ = np.concatenate([(v - centre[which]) / h, np.ones((len(v), 1))], axis=1)
+        w = np.einsum("vkj,vj->vk", m[which], b_)
+        near = near[which]
         if k > 8:  # widen every row: one gather width for the device kernel
             index = np.concatenate([index, np.zeros((len(index), k - 8), np.int64)], axis=1)
             weight = np.concatenate([weight, np.zeros((len(weight), k - 8))], axis=1)
@@ -259,6 +268,16 @@ def _fill(mesh, notes: list, n: int, size: float | None, scale: float | None, pa
     index, weight = _embedding(vertices, points, grid, origin, h)
     return MeshLattice(path, h, grid.astype(np.int32), points, pairs, kind, rest, vertices, triangles, index, weight,
                        float(mesh.volume) * factor**3, dropped, notes)
+
+
+def particle_surface(m: MeshLattice) -> np.ndarray:
+    """The input surface in particle terms, [t, 3] local particle indices: each mesh vertex
+    replaced by the particle it follows with the largest weight, triangles that collapse dropped.
+    A coarse, outward-wound stand-in for the drawn surface where particles are needed (picking)."""
+    main = m.embed_index[np.arange(len(m.embed_index)), np.argmax(m.embed_weight, axis=1)]
+    tri = main[m.triangles].astype(np.int64)
+    keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+    return tri[keep]
 
 
 @functools.lru_cache(maxsize=8)

@@ -170,9 +170,9 @@ class Simulation:
 
         Without ``on_frame`` and ``record`` nothing needs the frames, and the steps go in long
         launches instead (``_free_run``). ``on_frame(sim)`` is called at t = 0, at every frame and
-        at the final state; with
-        ``record`` the (t, x, v) of each of those is kept in ``RunResult.frames``. ``progress``,
-        if given, is called as ``progress(steps_done, total_steps, sim)``.
+        at the final state; with ``record`` the (t, x, v) of each of those is kept in
+        ``RunResult.frames``. ``progress``, if given, is called as ``progress(steps_done,
+        total_steps, sim)``.
         """
         total = step_count(duration, self.dt)
         if on_frame is None and not record:

@@ -46,3 +46,4 @@ def test_stability_regions():
     assert ls.stable_limit("rk4", 1e4, (0.0, 0.0)) * 100 == pytest.approx(2 * math.sqrt(2), rel=0.01)
     assert ls.stable_limit("semi_implicit_euler", 1e4, (0.0, 0.0)) * 100 == pytest.approx(2.0, rel=0.01)
     assert ls.stable_limit("implicit_euler", 1e4, (0.0, 0.0)) == math.inf
+    assert ls.stable_limit("explicit_euler", 1e4, (0.0, 0.0)) == 0.0  # undamped: unstable at any step

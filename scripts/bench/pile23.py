@@ -4,7 +4,8 @@ Per frame (1/30 s) the deepest overlap between particles of different bodies, as
 smaller lattice spacing of the pair; wall seconds of the whole 6-s run with body-body contact inside
 the step (``solver.body_contact = true``) and without (bodies pass through each other): a warm-up
 step of each, then ROUNDS interleaved rounds, ``ti.sync()`` before each clock reading, medians.
-usage (from the repository root): .venv/bin/python scripts/bench/pile23.py [INTEGRATOR] [DT] [ROUNDS]"""
+usage (from the repository root): .venv/bin/python scripts/bench/pile23.py [INTEGRATOR] [DT] [ROUNDS] [KEY=VALUE ...]
+(KEY=VALUE: scene overrides for both runs, as --set)"""
 import os, sys, time, json
 sys.path.insert(0, os.getcwd())
 import numpy as np
@@ -18,7 +19,8 @@ from taichi_soft.collision import contact_radii
 name = sys.argv[1] if len(sys.argv) > 1 else "fast_mass_spring"
 dt = float(eval(sys.argv[2])) if len(sys.argv) > 2 else 1 / 60
 rounds = int(sys.argv[3]) if len(sys.argv) > 3 else 1
-sims = {on: Simulation(load_scene("pile", [f"solver.body_contact={'true' if on else 'false'}"], integrator_names=names()),
+sets = sys.argv[4:]
+sims = {on: Simulation(load_scene("pile", sets + [f"solver.body_contact={'true' if on else 'false'}"], integrator_names=names()),
                        name, dt) for on in (True, False)}
 sim = sims[True]
 r = contact_radii(sim.model)
@@ -56,7 +58,7 @@ for k in range(rounds):
         stats[on] = s.integrator.stats()
         assert not s.diverged, f"diverged (body_contact={on})"
 on, off = np.median(walls[True]), np.median(walls[False])
-print(json.dumps({"integrator": name, "dt": dt, "particles": sim.model.n_particles, "rounds": rounds,
+print(json.dumps({"integrator": name, "dt": dt, "sets": sets, "particles": sim.model.n_particles, "rounds": rounds,
                   "deepest_overlap_fraction_of_spacing": worst, "wall_on_s": on, "wall_off_s": off, "ratio": on / off,
                   "walls": {str(k): v for k, v in walls.items()}, "load": os.getloadavg(),
                   "stats_on": stats[True], "stats_off": stats[False]}, indent=1))

@@ -69,6 +69,7 @@ class UsdCache:
             mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(tris.ravel().tolist()))
             mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # a triangle mesh, shaded smooth by normals
             mesh.CreateDisplayColorAttr([tuple(BODY_COLORS[b % len(BODY_COLORS)])])
+            mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)  # one normal per point, sampled with them
             self.bodies.append((mesh, first, count))
         for i, t in enumerate(terrain_meshes):
             mesh = UsdGeom.Mesh.Define(stage, f"/World/terrain_{i}")
@@ -85,7 +86,7 @@ class UsdCache:
         self.last_code = None
 
     def add(self, mesh: tuple[np.ndarray, np.ndarray], index: int, time: float):
-        from pxr import UsdGeom, Vt
+        from pxr import Vt
 
         vertices, normals = mesh
         code = float(index)  # frame k, as in the video: the step nearest k / fps seconds
@@ -94,7 +95,6 @@ class UsdCache:
             nrm = np.ascontiguousarray(normals[first:first + count], dtype=np.float32)
             usd_mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(pts), code)
             usd_mesh.GetNormalsAttr().Set(Vt.Vec3fArray.FromNumpy(nrm), code)
-            usd_mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
             usd_mesh.GetExtentAttr().Set(Vt.Vec3fArray.FromNumpy(np.stack([pts.min(axis=0), pts.max(axis=0)])), code)
         if self.last_code is None:
             self.stage.SetStartTimeCode(code)

@@ -2,8 +2,8 @@
 
 A mesh body (``shape = "mesh"``, ``meshbody.py``) is simulated as a lattice of particles; what
 it looks like is the mesh it was made from. Each vertex of that mesh is a fixed weighted sum of
-particles (trilinear weights of its lattice cell, or affine weights over its nearest particles
-in boundary cells that miss corners: ``meshbody.MeshLattice.embed_*``), so the surface follows
+particles (trilinear weights of its lattice cell, or affine weights over the particles nearest
+its cell in boundary cells that miss corners: ``meshbody.MeshLattice.embed_*``), so the surface follows
 the lattice as it bends, squashes and rotates.
 
 ``EmbeddedSurface`` has the interface of ``meshes.SurfaceMesh`` (vertices, normals, indices,
@@ -15,7 +15,7 @@ no body is a mesh body.
 import numpy as np
 import taichi as ti
 
-from .meshes import SurfaceMesh
+from .meshes import SurfaceMesh, smooth_normals
 
 
 def body_surface(model):
@@ -75,24 +75,15 @@ class EmbeddedSurface:
 
     @ti.kernel
     def update(self, x: ti.template()):
-        """Place every vertex from the particle positions ``x`` and recompute vertex normals
-        (area-weighted means of the triangles' normals, as ``SurfaceMesh.update``)."""
+        """Place every vertex from the particle positions ``x`` and recompute its normal
+        (``meshes.smooth_normals``, as ``SurfaceMesh.update``)."""
         for v in range(self.n_vertices):
             p = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
             for c in range(self.width):
                 p += self.weight[v, c] * ti.cast(x[self.follow[v, c]], ti.f32)
             self.vertices[v] = p
             self.normals[v] = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
-        for t in range(self.n_triangles):
-            a, b, c = self.indices[3 * t], self.indices[3 * t + 1], self.indices[3 * t + 2]
-            n = (self.vertices[b] - self.vertices[a]).cross(self.vertices[c] - self.vertices[a])
-            self.normals[a] += n  # atomic: triangles sharing a vertex add concurrently
-            self.normals[b] += n
-            self.normals[c] += n
-        for v in range(self.n_vertices):
-            length = self.normals[v].norm()
-            if length > 0:
-                self.normals[v] /= length
+        smooth_normals(self.vertices, self.normals, self.indices)
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:
         """(vertices [n_vertices, 3] m, normals [n_vertices, 3]) as float32 copies."""

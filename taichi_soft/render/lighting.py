@@ -63,7 +63,8 @@ vec3f = ti.types.vector(3, ti.f32)
 def _shade(vertices: ti.template(), normals: ti.template(), base: ti.template(), out: ti.template(),
            ambient: vec3f, key_pos: vec3f, key_col: vec3f, fill_pos: vec3f, fill_col: vec3f, two_sided: ti.i32):
     for v in vertices:
-        p, n, c = vertices[v], normals[v].normalized(), base[v]
+        # eps: a degenerate vertex with a zero normal gets ambient light only, not NaN.
+        p, n, c = vertices[v], normals[v].normalized(1e-20), base[v]
         result = c * (ambient + _diffuse(p, n, key_pos, two_sided) * key_col
                       + _diffuse(p, n, fill_pos, two_sided) * fill_col)
         # The colour attachment saturates at 1 per pixel; clamping per vertex keeps interpolated

@@ -151,6 +151,23 @@ def terrain_meshes(kind: str, params: dict, scene_data: dict) -> list[TriMesh]:
 
 
 # -- bodies -------------------------------------------------------------------------------------
+@ti.func
+def smooth_normals(vertices: ti.template(), normals: ti.template(), indices: ti.template()):
+    """Unit vertex normals of the triangle mesh (``vertices``, flat triangle corner ``indices``)
+    into ``normals``, which the caller has zeroed: each the area-weighted mean of its triangles'
+    normals (the unnormalised cross product is twice the area). Call at a kernel's top level."""
+    for t in range(indices.shape[0] // 3):
+        a, b, c = indices[3 * t], indices[3 * t + 1], indices[3 * t + 2]
+        n = (vertices[b] - vertices[a]).cross(vertices[c] - vertices[a])
+        normals[a] += n  # atomic: triangles sharing a vertex add concurrently
+        normals[b] += n
+        normals[c] += n
+    for v in range(normals.shape[0]):
+        length = normals[v].norm()
+        if length > 0:
+            normals[v] /= length
+
+
 @ti.data_oriented
 class SurfaceMesh:
     """Every body's outer surface on the device, in f32 (what GGUI draws and exporters write).
@@ -192,16 +209,7 @@ class SurfaceMesh:
         for v in range(self.n_vertices):
             self.vertices[v] = ti.cast(x[self.vertex_particle[v]], ti.f32)
             self.normals[v] = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
-        for t in range(self.n_triangles):
-            a, b, c = self.indices[3 * t], self.indices[3 * t + 1], self.indices[3 * t + 2]
-            n = (self.vertices[b] - self.vertices[a]).cross(self.vertices[c] - self.vertices[a])
-            self.normals[a] += n  # atomic: triangles sharing a vertex add concurrently
-            self.normals[b] += n
-            self.normals[c] += n
-        for v in range(self.n_vertices):
-            length = self.normals[v].norm()
-            if length > 0:
-                self.normals[v] /= length
+        smooth_normals(self.vertices, self.normals, self.indices)
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:
         """(vertices [n_vertices, 3] m, normals [n_vertices, 3]) as float32 copies."""

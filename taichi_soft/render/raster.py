@@ -130,14 +130,16 @@ class TaichiRasterizer:
                             x1 = ti.min(x1, -offset / slope + 1.0)
                         elif offset < 0.0:
                             x1 = -1.0
+                    # Kept within the box before the cast: a near-zero slope gives huge bounds.
+                    x0, x1 = ti.min(x0, ti.f32(c1 + 1)), ti.max(x1, ti.f32(c0 - 1))
                     for col in range(ti.cast(ti.ceil(x0), ti.i32), ti.cast(ti.floor(x1), ti.i32) + 1):
                         b = b0 + ti.f32(col) * dx
                         s = b.sum()
                         if b[0] >= 0.0 and b[1] >= 0.0 and b[2] >= 0.0 and s > 0.0:
                             w = 1.0 / s  # view depth of the point seen [m]
                             if Z_NEAR <= w <= Z_FAR:
-                                c = ti.min(ti.max(rgb @ (b * w) + 0.5, 0.0), 255.0)
-                                packed = (ti.cast(c[0], ti.i64) << 16) | (ti.cast(c[1], ti.i64) << 8) | ti.cast(c[2], ti.i64)
+                                c = ti.cast(ti.min(ti.max(rgb @ (b * w) + 0.5, 0.0), 255.0), ti.i64)
+                                packed = (c[0] << 16) | (c[1] << 8) | c[2]
                                 key = (ti.cast(ti.bit_cast(ti.f32(w), ti.i32), ti.i64) << 32) | packed
                                 if key < self.key[row, col]:  # most hidden pixels need no atomic
                                     ti.atomic_min(self.key[row, col], key)
