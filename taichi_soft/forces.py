@@ -147,9 +147,9 @@ class ForceEvaluator:
         changed since the last copy (also when written straight into the fields).
 
         Called at the top level of every step kernel, before its steps: a serial comparison of the
-        few groups, then a copy loop of zero iterations unless something changed. It used to run
-        from Python before each ``advance`` (downloading both fields: two parallel launches, most
-        of the ``run`` path's per-frame cost at n = 10; docs/benchmarks/README.md, issue 25).
+        few groups, then a serial copy loop of zero iterations unless something changed. It used
+        to run from Python before each ``advance`` (downloading both fields: two parallel launches,
+        most of the ``run`` path's per-frame cost at n = 10; docs/benchmarks/README.md, issue 25).
         """
         m = self.model
         ti.loop_config(serialize=True)
@@ -159,15 +159,16 @@ class ForceEvaluator:
                 self._changed[None] = 1
                 self._seen[g] = kkd
         self._copied[None] = 1
-        # Serial launches stay serial: even an empty parallel loop wakes the thread pool.
+        # Serial even in parallel launches: an empty parallel loop still costs a thread-pool round
+        # trip every step, and a change (a slider move) is rare; copying then takes a few ms.
         if ti.static(self._has_rows()):
             rows = self.rows
-            ti.loop_config(serialize=not self.parallel)
+            ti.loop_config(serialize=True)
             for e in range(self._changed[None] * m.n_particles * rows.width):
                 g = rows.group[e]
                 rows.kkd[e] = ti.Vector([m.group_k[g], m.group_kd[g]])  # padding: zero force anyway
         else:
-            ti.loop_config(serialize=not self.parallel)
+            ti.loop_config(serialize=True)
             for s in range(self._changed[None] * m.n_springs):
                 g = m.spring_group[s]
                 self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])

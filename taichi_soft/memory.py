@@ -88,12 +88,12 @@ _SCATTER = _MODEL + _STATE + FieldCounts(3, 0, 2, 0)  # force sums | (k, kd)
 _GATHER = _MODEL + _STATE  # + the padded rows (rows.py), counted by rows_bytes
 _PING_PONG = FieldCounts(6, 0, 0, 0)  # one-stage methods with gathered forces: second x, v
 _RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
-# Implicit solvers (no force-pass buffers), per particle: the objective's 7 vectors and friction
-# block, contact normals, multiplier, end-of-step velocities (43 reals), the PCG's 4 vectors (12),
-# restitution's prescribed change, right-hand side and response (9), the scheme's base point and
-# the last step's end state (9), the active-set flags (3 ints); per spring: damper direction and
-# gradient (6 reals).
-_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(73, 3, 6, 0)
+# Implicit solvers (no force-pass buffers), per particle: the objective's 9 vectors (with the
+# displacements u, u_trial the solve iterates on) and friction block, contact normals, multiplier,
+# end-of-step velocities (49 reals), the PCG's 4 vectors (12), restitution's prescribed change,
+# right-hand side and response (9), the scheme's base displacement and the last step's end state
+# (9), the active-set flags (3 ints); per spring: damper direction and gradient (6 reals).
+_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(79, 3, 6, 0)
 _IMPLICIT_EULER = _IMPLICIT + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
 _FAST_MASS_SPRING = _IMPLICIT + FieldCounts(1, 0, 0, 0)  # diagonal of M + L (L-BFGS pairs: _lbfgs_reals)
 FIELDS = {
@@ -143,15 +143,16 @@ def scene_counts(scene_data: dict) -> tuple[int, int]:
 
 def _surface_host_bytes(scene_data: dict) -> int:
     """Host bytes of the bodies' surfaces: a cube's 12 (n-1)^2 triangles as int64 triples; a mesh
-    body's triangles (int64) and vertices (float64) and each vertex's embedding (int32 index and
-    float64 weight per followed particle)."""
+    body's triangles (int64, twice: the mesh's and ``BodyInfo.surface``), vertices (float64) and
+    each vertex's embedding (index and float64 weight per followed particle)."""
     total = 0
     for b in scene_data["body"]:
         m = _mesh_lattice(b)
         if m is None:
             total += 12 * (int(b["n"]) - 1) ** 2 * 3 * 8
         else:
-            total += m.triangles.nbytes + m.vertices.nbytes + m.embed_index.nbytes + m.embed_weight.nbytes
+            # + its particle-index stand-in (meshbody.particle_surface), at most one triple per triangle
+            total += 2 * m.triangles.nbytes + m.vertices.nbytes + m.embed_index.nbytes + m.embed_weight.nbytes
     return total
 
 

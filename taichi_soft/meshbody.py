@@ -51,7 +51,9 @@ class MeshLattice:
     pairs [n_springs, 2] particle indices, kind [n_springs] (0 stretch, 1 shear, 2 bend) and
     rest [n_springs] lengths in ``lattice`` spring order; h spacing; vertices [nv, 3] and
     triangles [nt, 3] the input surface (outward winding); embed_index / embed_weight [nv, 8]
-    the particles and weights each vertex follows; notes: what was repaired or dropped.
+    (or [nv, NEAREST] when a vertex lies in a boundary cell, rows padded with weight 0) the
+    particles and weights each vertex follows; mesh_volume [m^3]; dropped: particles dropped as
+    too small pieces; notes: what was repaired or dropped.
     """
 
     path: Path
@@ -266,6 +268,16 @@ def _fill(mesh, notes: list, n: int, size: float | None, scale: float | None, pa
     index, weight = _embedding(vertices, points, grid, origin, h)
     return MeshLattice(path, h, grid.astype(np.int32), points, pairs, kind, rest, vertices, triangles, index, weight,
                        float(mesh.volume) * factor**3, dropped, notes)
+
+
+def particle_surface(m: MeshLattice) -> np.ndarray:
+    """The input surface in particle terms, [t, 3] local particle indices: each mesh vertex
+    replaced by the particle it follows with the largest weight, triangles that collapse dropped.
+    A coarse, outward-wound stand-in for the drawn surface where particles are needed (picking)."""
+    main = m.embed_index[np.arange(len(m.embed_index)), np.argmax(m.embed_weight, axis=1)]
+    tri = main[m.triangles].astype(np.int64)
+    keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+    return tri[keep]
 
 
 @functools.lru_cache(maxsize=8)

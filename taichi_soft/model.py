@@ -110,8 +110,9 @@ class BodySpec:
 class BodyInfo:
     """Where a finalized body's particles, springs and surface live in the model's arrays.
 
-    A cube's ``surface`` is its lattice's boundary; a mesh body's is empty and ``mesh`` holds its
-    ``meshbody.MeshLattice`` (the input surface embedded in the lattice, local particle indices).
+    A cube's ``surface`` is its lattice's boundary. A mesh body's ``mesh`` holds its
+    ``meshbody.MeshLattice`` (the input surface embedded in the lattice: what is drawn), and its
+    ``surface`` is that mesh in particle terms (``meshbody.particle_surface``: what the demo picks on).
     """
 
     particles: slice
@@ -165,7 +166,7 @@ class ModelBuilder:
                 group_kd.append(kd)
             counts = mesh.spring_counts() if mesh else lattice.spring_counts(spec.n)
             kind_counts += counts
-            surf = np.zeros((0, 3), np.int64) if mesh else lattice.surface_triangles(spec.n) + p0
+            surf = (meshbody.particle_surface(mesh) if mesh else lattice.surface_triangles(spec.n)) + p0
             bodies.append(BodyInfo(sl, slice(s0, s0 + sum(counts)), surf, spec, mesh))
             p0 += len(x)
             s0 += sum(counts)

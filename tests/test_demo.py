@@ -136,7 +136,8 @@ def test_divergence_pauses_with_a_message_and_reset_recovers(fresh):
     fresh.step(500)
     msg = fresh.message
     assert msg and msg.startswith("diverged at t = ") and "explicit_euler" in msg and "dt = 0.01 s" in msg
-    assert "try dt <= 0.005" in msg
+    hint = fresh.sim.suggest_dt()  # below explicit Euler's linear stability limit with k = 1e6 (issue 24)
+    assert f"try dt <= {hint:g}" in msg and hint < 1e-4
     assert fresh.settings.paused and fresh.step(10) == 0
     assert fresh.last_measures is not None and np.isfinite(fresh.last_measures["total_energy"])
     fresh.set_dt(1e-4)

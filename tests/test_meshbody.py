@@ -153,6 +153,10 @@ def test_mesh_body_comes_to_rest_on_the_plane(meshes):
         return np.where(used, d, np.inf).min(axis=1)
 
     assert np.all(nearest(final, xf) <= nearest(rest, x0) + 0.5 * m.h)
+    # the particle stand-in of the surface (demo picking) covers the body's outer particles
+    surf = body.surface - body.particles.start
+    assert len(surf) and surf.min() >= 0 and surf.max() < m.n_particles
+    assert x0[np.unique(surf), 1].max() == x0[:, 1].max() and x0[np.unique(surf), 1].min() == x0[:, 1].min()
 
 
 def test_mesh_body_on_a_cube(meshes):

@@ -79,6 +79,7 @@ class DemoApp:
         self.marks = Marks()
         self.timer = FrameTimer(sync=ti.sync)
         self.show_timing = False  # T: the frame timer's line in the HUD
+        self._shift = False  # Shift held (from its press and release events)
         self.cam_spec: CameraSpec | None = None  # the camera of the frame on screen (picking uses it)
         self.session = None  # a ``session.SessionRecorder`` when recording inputs (--record)
         self._generation = None
@@ -227,17 +228,25 @@ class DemoApp:
         presses, releases = w.get_events(ti.ui.PRESS), w.get_events(ti.ui.RELEASE)
         for e in presses:
             self._press(e.key)
+        # Shift is tracked from its own events: GGUI's is_pressed(SHIFT) was seen stuck down after
+        # a Shift+click under XTest, turning the next plain click into a pin.
+        if any(e.key == ti.ui.SHIFT for e in releases):
+            self._shift = False
+        if self.hand.held is not None and self.ctl.grab.held is None:
+            self.hand.cancel()  # R or a switch let go of the grab: the release must not poke
         if any(e.key == ti.ui.LMB for e in releases):
             self.hand.release()
         if self.hand.held is not None:
             self.hand.motion(w.get_cursor_pos(), self.cam_spec)
 
     def _press(self, key):
-        if key == ti.ui.LMB:
+        if key == ti.ui.SHIFT:
+            self._shift = True
+        elif key == ti.ui.LMB:
             cursor = self.window.get_cursor_pos()
             # The panel's ImGui widgets take clicks over it; the scene the rest.
             if cursor[0] < PANEL_X and self.cam_spec is not None and not self.ctl.message:
-                self.hand.press(cursor, self.cam_spec, shift=self.window.is_pressed(ti.ui.SHIFT))
+                self.hand.press(cursor, self.cam_spec, shift=self._shift)
             return
         if key == ti.ui.ESCAPE:
             self.window.running = False

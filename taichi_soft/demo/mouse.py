@@ -55,7 +55,7 @@ class MouseHand:
         """The drawn surface's triangles (particle indices) of the current simulation."""
         model = self.ctl.sim.model
         if getattr(self, "_tri_model", None) is not model:
-            self._tri = np.concatenate([b.surface for b in model.bodies]).astype(np.int64)
+            self._tri = np.concatenate([np.reshape(b.surface, (-1, 3)) for b in model.bodies]).astype(np.int64)
             self._tri_model = model
         return self._tri
 

@@ -130,6 +130,7 @@ def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
 
 
 def main(argv=None) -> int:
+    from ..errors import UserError
     from ..runtime import init
     from ..scene import load_scene, parse_resolution
     from ..simulation import Simulation
@@ -143,17 +144,23 @@ def main(argv=None) -> int:
     p.add_argument("--renderer", default="ggui,taichi", help="comma-separated: ggui, taichi (default: both)")
     p.add_argument("--repeats", type=int, default=15)
     args = p.parse_args(argv)
-    sizes = [parse_resolution(r) for r in args.resolution.split(",")]
     kinds = args.renderer.split(",")
     if set(kinds) - {"ggui", "taichi"}:
         p.error(f"--renderer: choose from ggui, taichi, got {args.renderer}")
+    try:  # bad input: one line and exit 2 before any work
+        sizes = [parse_resolution(r) for r in args.resolution.split(",")]
+        scenes = args.scene.split(",")
+        for name in scenes:
+            load_scene(name)
+    except UserError as e:
+        p.error(str(e))
     init("cpu", "f64", fast_math=True)  # as the command line runs
     print(f"load average before: {', '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores)")
     with tempfile.TemporaryDirectory() as tmp:
-        for name in args.scene.split(","):
+        for name in scenes:
             for width, height in sizes:
                 for kind in kinds:
-                    sim = Simulation(load_scene(name))
+                    sim = Simulation(load_scene(name))  # a fresh one per table
                     sim.advance(1200)  # mid-motion: a deformed body in frame
                     renderer = (Renderer if kind == "ggui" else TaichiRenderer)(width, height)
                     view = SimulationView(sim)
