@@ -18,7 +18,7 @@ from pathlib import Path
 
 from .errors import OutputError, Terminated, UserError
 from .memory import check_fits
-from .outfiles import probe_writable, remove_stale_temps, write_atomic
+from .outfiles import finite_or_none, probe_writable, remove_stale_temps, write_atomic
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, EXIT_TASKS_FAILED, EXIT_UNRELIABLE = 0, 2, 3, 4, 5, 6
 EXIT_REPLAY_DIFFERS = 7  # demo --replay ended in another state than the recorded session
@@ -112,17 +112,6 @@ def _in_default_out(folder: Path) -> bool:
     out = (Path.cwd() / DEFAULT_OUT).resolve()
     target = folder.resolve()
     return target == out or out in target.parents
-
-
-def finite_or_none(obj):
-    """JSON has no NaN/inf: replace them (in nested dicts/lists) by null."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [finite_or_none(v) for v in obj]
-    return obj
 
 
 # -- commands --------------------------------------------------------------------------------
