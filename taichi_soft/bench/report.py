@@ -594,7 +594,7 @@ def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | Non
         parts += ["**Interrupted (Ctrl-C): the tables hold what was measured before the stop.**", ""]
     failed = {k: v for r in (acc, stab) if r for k, v in r.get("failed", {}).items()}
     if failed:
-        parts += [f"**Failed tasks (after {RETRIES} retries each): their rows are missing from the tables.**", ""]
+        parts += [f"**Failed tasks (each submitted {RETRIES + 1} times): their rows are missing from the tables.**", ""]
         parts += [f"* `{k}`: {v[:300]}" for k, v in failed.items()] + [""]
     if acc:
         parts.append(accuracy_markdown(acc))
