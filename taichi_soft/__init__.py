@@ -6,6 +6,8 @@ scene to them; rendering and the command line sit on top and are never imported 
 """
 import os
 
+# Taichi reads these when it is first imported: set here, before any module of the package imports
+# it (the one home of this environment; child processes inherit it).
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
 os.environ.setdefault("TI_LOG_LEVEL", "error")
 

@@ -2,7 +2,7 @@
 
 Exit status: 0 success, 2 bad input (one line on stderr, nothing overwritten), 3 the run
 diverged (summary and states so far are still written), 4 an output could not be written (one
-line per output; each keeps its old file), 5 a sweep's task failed twice (the others' outputs are
+line per output; each keeps its old file), 5 a sweep's task failed every attempt (the others' outputs are
 still written), 130 / 143 / 129 interrupted by SIGINT / SIGTERM / SIGHUP (nothing half-written is
 left; a sweep keeps what finished).
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from .errors import OutputError, Terminated, UserError
 from .memory import check_fits
-from .outfiles import probe_writable, remove_stale_temps, write_atomic
+from .outfiles import finite_or_none, probe_writable, remove_stale_temps, write_atomic
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OUTPUT, EXIT_TASKS_FAILED, EXIT_UNRELIABLE = 0, 2, 3, 4, 5, 6
 EXIT_REPLAY_DIFFERS = 7  # demo --replay ended in another state than the recorded session
@@ -112,17 +112,6 @@ def _in_default_out(folder: Path) -> bool:
     out = (Path.cwd() / DEFAULT_OUT).resolve()
     target = folder.resolve()
     return target == out or out in target.parents
-
-
-def finite_or_none(obj):
-    """JSON has no NaN/inf: replace them (in nested dicts/lists) by null."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [finite_or_none(v) for v in obj]
-    return obj
 
 
 # -- commands --------------------------------------------------------------------------------
@@ -451,7 +440,7 @@ def cmd_bench(args) -> int:
 
     from . import runtime
     from .progress import CountBar
-    from .tasks import make_executor
+    from .tasks import RETRIES, make_executor
 
     if args.study == "speed-worker":  # internal: one (arch, precision) per process, JSON on stdout
         from .bench.report import run_speed_worker
@@ -519,7 +508,7 @@ def cmd_bench(args) -> int:
     print(f"wrote {len(files)} files to {out_dir}: {md}")
     failed = {k: v for r in (acc, stab) if r for k, v in r["failed"].items()}
     for key, err in failed.items():
-        print(f"bench {args.study}: task {key} FAILED after 2 attempts: {err}", file=sys.stderr)
+        print(f"bench {args.study}: task {key} FAILED after {RETRIES + 1} attempts: {err}", file=sys.stderr)
     if any(r and r["interrupted"] for r in (acc, stab, speed, mem)):
         return 130
     return EXIT_TASKS_FAILED if failed else EXIT_OK

@@ -15,7 +15,7 @@ import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .outfiles import write_atomic
+from .outfiles import finite_or_none, write_atomic
 from .tasks import Task, run_tasks
 
 # The step each integrator gets unless --dt is given [s]: explicit methods the scene's own
@@ -109,7 +109,6 @@ def build_tasks(plan: Plan, scene_dts: dict) -> list[Task]:
 def render_run(scene: str, integrator: str, dt: float, duration, resolution, sets) -> dict:
     """Render one run to an MP4; return its bytes, frame count, run summary and energy per frame."""
     from . import runtime
-    from .cli import finite_or_none
     from .render import overlay
     from .render.compare import solver_options
     from .render.recorder import FrameRecorder, RenderOptions
@@ -144,7 +143,6 @@ def render_run(scene: str, integrator: str, dt: float, duration, resolution, set
 def render_compare(scene: str, integrators: list, dt, duration, resolution, sets) -> dict:
     """Render one terrain's ``compare`` mosaic (all integrators at one dt) to an MP4."""
     from . import runtime
-    from .cli import finite_or_none
     from .render.compare import Comparison
     from .render.recorder import RenderOptions
 

@@ -5,6 +5,7 @@ Used by the command line and the renderer; physics never writes files.
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 import secrets
@@ -126,3 +127,14 @@ def _remove_dead(folder: Path, wanted) -> list[str]:
             continue
         said.append(f"removed {entry}, a temporary left by process {pid}, which is no longer running")
     return said
+
+
+def finite_or_none(obj):
+    """JSON has no NaN/inf: replace them (in nested dicts/lists) by null."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_none(v) for v in obj]
+    return obj

@@ -3,14 +3,12 @@ from __future__ import annotations
 
 import contextlib
 import io
-import os
 
-os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
-os.environ.setdefault("TI_LOG_LEVEL", "error")
+# Taichi's start-up environment (no banner, errors only) is set in taichi_soft/__init__.py, which
+# runs before any module of the package imports Taichi.
+import taichi as ti
 
-import taichi as ti  # noqa: E402
-
-from .errors import UserError  # noqa: E402
+from .errors import UserError
 
 ARCHS = ("cpu", "cuda", "vulkan", "metal", "auto")
 PRECISIONS = ("f32", "f64")

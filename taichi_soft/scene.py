@@ -15,6 +15,7 @@ from pathlib import Path
 
 from .errors import UserError
 from .model import BodySpec
+from .paths import PACKAGE_DIR, ROOT
 from .terrain import CONTACT_DEFAULTS
 from .terrain import DEFAULTS as TERRAIN_DEFAULTS
 from .terrain import KINDS as TERRAIN_KINDS
@@ -22,9 +23,8 @@ from .terrain import KINDS as TERRAIN_KINDS
 def _scenes_dir() -> Path:
     """The scene folder: the checkout's top-level scenes/, or the installed package data
     taichi_soft/scenes (``pip install .`` maps the one onto the other, see pyproject.toml)."""
-    here = Path(__file__).resolve().parent
-    checkout = here.parent / "scenes"
-    return checkout if (checkout / "plane.toml").is_file() else here / "scenes"
+    checkout = ROOT / "scenes"
+    return checkout if (checkout / "plane.toml").is_file() else PACKAGE_DIR / "scenes"
 
 
 SCENES_DIR = _scenes_dir()

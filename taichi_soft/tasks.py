@@ -1,5 +1,5 @@
 """Independent runs ("tasks") executed in fresh processes: locally (``--workers N``) or on a Dask
-cluster (``--scheduler ADDRESS``), with a progress bar, one retry, and Ctrl-C that keeps results.
+cluster (``--scheduler ADDRESS``), with a progress bar, ``RETRIES`` retries, and Ctrl-C that keeps results.
 
 A ``Task`` names a module-level function (``"package.module:function"``) and its keyword
 arguments (plain picklable data). Every attempt runs as ``python -m taichi_soft.tasks SPEC OUT``
@@ -13,8 +13,8 @@ is pickled to OUT and travels back to the client, which alone writes the user's 
   on its own machine and returns the result (CSV rows, or a video's bytes: no shared storage
   is assumed).
 
-A task that fails (non-zero exit, an exception, a lost worker) is submitted once more; if it
-fails again it is reported in ``Outcome.failed`` (never silently missing). Ctrl-C cancels the
+A task that fails (non-zero exit, an exception, a lost worker) is submitted again, up to ``RETRIES``
+times; if it still fails it is reported in ``Outcome.failed`` (never silently missing). Ctrl-C cancels the
 tasks not yet finished (local child processes are killed) and returns what finished, with
 ``Outcome.interrupted`` set.
 
@@ -37,11 +37,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import UserError
+from .paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 CONNECT_TIMEOUT_S = 3  # how long to try to reach a --scheduler before refusing it
 POLL_S = 0.2  # how often the client wakes to redraw the bar and notice Ctrl-C
 ERROR_TAIL = 1500  # characters of a failed child's stderr kept in the report
+RETRIES = 1  # how many times a failed task is submitted again before it is reported failed
 
 
 @dataclass(frozen=True)
@@ -251,7 +252,7 @@ def make_executor(workers: int | None = None, scheduler: str | None = None):
 
 
 # -- the sweep loop ------------------------------------------------------------------------------------
-def run_tasks(tasks: list[Task], executor, label: str = "tasks", retries: int = 1, bar=True,
+def run_tasks(tasks: list[Task], executor, label: str = "tasks", retries: int = RETRIES, bar=True,
               on_result=None) -> Outcome:
     """Run every task on ``executor``; retry each failure ``retries`` times; Ctrl-C keeps what finished.
 

@@ -16,12 +16,11 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 from .. import memory
+from ..paths import ROOT
 from ..scene import MAX_N, load_scene
 
-ROOT = Path(__file__).resolve().parents[2]
 SIZES = (10, 20, 40, 80)
 # One integrator per family and precision (the explicit family's two ends, both implicit solvers).
 CONFIGS = (("semi_implicit_euler", "f64"), ("semi_implicit_euler", "f32"), ("rk4", "f64"),

@@ -26,11 +26,13 @@ from pathlib import Path
 import taichi as ti
 
 from ..integrators import REGISTRY
+from ..integrators.base import DIVERGENCE_SPEED2
 from ..outfiles import write_atomic
+from ..paths import ROOT
+from ..tasks import RETRIES
 from . import accuracy, machine, stability
 from .speed import measure as measure_speed
 
-ROOT = Path(__file__).resolve().parents[2]
 
 # Largest dt each integrator is swept to in the accuracy study [s] (the rest are log-spaced below).
 DT_CAP = {"explicit_euler": 2e-3, "semi_implicit_euler": 2e-3, "midpoint": 4e-3, "rk4": 6e-3}
@@ -144,7 +146,7 @@ def run_stability(quick: bool, executor=None, names=None) -> dict:
 
     names = list(names or REGISTRY)
     cfg = {"sets": ["body.0.n=4", "body.0.size=2.0", "body.0.center=[0, 3, 0]"] if quick else [],
-           "horizon": 1.0 if quick else 2.0, "rel_tol": 0.1 if quick else 0.03, "hi": stability.DT_MAX}
+           "horizon": 1.0 if quick else stability.HORIZON, "rel_tol": 0.1 if quick else 0.03, "hi": stability.DT_MAX}
     scales = stability.QUICK_STIFFNESS_SCALES if quick else stability.STIFFNESS_SCALES
     terrains = ("plane",) if quick else TERRAINS
     tasks = [Task(f"terrain/{n}/{t}", "taichi_soft.bench.report:stability_terrain_task", dict(cfg, name=n, terrain=t))
@@ -157,8 +159,8 @@ def run_stability(quick: bool, executor=None, names=None) -> dict:
 
     return {"terrain_rows": part("terrain"), "stiffness_rows": part("stiffness"), "interrupted": interrupted,
             "failed": failed,
-            "criteria": {"horizon_s": cfg["horizon"], "energy_growth": 0.05, "max_penetration_m": 0.1,
-                         "dt_max_tried": cfg["hi"]},
+            "criteria": {"horizon_s": cfg["horizon"], "energy_growth": stability.ENERGY_GROWTH,
+                         "max_penetration_m": stability.MAX_PENETRATION, "dt_max_tried": cfg["hi"]},
             "quick": quick}
 
 
@@ -348,6 +350,12 @@ def write_memory(result: dict, out_dir: Path) -> list[str]:
 
 
 # -- Markdown ------------------------------------------------------------------------------------------------
+def _sci(x: float) -> str:
+    """``x`` in the docs' short scientific form: 1e6, 2.5e-4."""
+    mantissa, exponent = f"{x:e}".split("e")
+    return f"{float(mantissa):g}e{int(exponent)}"
+
+
 def _fmt(x, spec=".3g"):
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "-"
@@ -377,8 +385,8 @@ def stability_markdown(result: dict) -> str:
     c = result["criteria"]
     out = ["## Stability", "",
            f"Largest stable dt by bisection on log dt (relative resolution a few %). Unstable means: the divergence "
-           f"check fires (non-finite velocity or |v|^2 > 1e6), total energy grows by more than "
-           f"{c['energy_growth']:.0%} of its scale, or a particle is deeper than {c['max_penetration_m']} m in the "
+           f"check fires (non-finite velocity or |v|^2 > {_sci(DIVERGENCE_SPEED2)}), total energy grows "
+           f"by more than {c['energy_growth']:.0%} of its scale, or a particle is deeper than {c['max_penetration_m']} m in the "
            f"terrain, within {c['horizon_s']} s. Steps up to {c['dt_max_tried']} s were tried ('>=' marks a method "
            "stable at the largest). Default cube" + (" (quick: 4^3, dropped from 3 m)" if result["quick"] else "") + ".", ""]
     terrains = list(dict.fromkeys(r["terrain"] for r in result["terrain_rows"]))
@@ -586,7 +594,7 @@ def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | Non
         parts += ["**Interrupted (Ctrl-C): the tables hold what was measured before the stop.**", ""]
     failed = {k: v for r in (acc, stab) if r for k, v in r.get("failed", {}).items()}
     if failed:
-        parts += ["**Failed tasks (after one retry each): their rows are missing from the tables.**", ""]
+        parts += [f"**Failed tasks (each submitted {RETRIES + 1} times): their rows are missing from the tables.**", ""]
         parts += [f"* `{k}`: {v[:300]}" for k, v in failed.items()] + [""]
     if acc:
         parts.append(accuracy_markdown(acc))

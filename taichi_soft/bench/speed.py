@@ -13,7 +13,7 @@ import time
 import taichi as ti
 
 from ..forces import SLAB_STRIDE
-from ..integrators import REGISTRY
+from ..paths import ROOT
 from ..scene import load_scene
 from ..simulation import Simulation
 
@@ -47,17 +47,6 @@ def measure(integrator: str, n: int, mode: str = "auto", chunk: int | None = Non
         "ns_per_particle_step": med / chunk / n**3 * 1e9, "realtime_factor": chunk * sim.dt / med,
         "diverged": sim.diverged,
     }
-
-
-def sweep(sizes=(10, 20, 40), integrators=None, modes=("auto",), repeats=5, progress=None) -> list[dict]:
-    rows = []
-    names = integrators or [k for k, c in REGISTRY.items()]
-    jobs = [(name, n, mode) for n in sizes for name in names for mode in modes]
-    for k, (name, n, mode) in enumerate(jobs):
-        rows.append(measure(name, n, mode, repeats=repeats))
-        if progress:
-            progress(k + 1, len(jobs), rows[-1])
-    return rows
 
 
 def table(rows: list[dict]) -> str:
@@ -445,7 +434,7 @@ class _Worker:
         self.spec = spec
         self.proc = subprocess.Popen([sys.executable, "-m", "taichi_soft.bench.speed", json.dumps(spec)],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                     cwd=str(__import__("pathlib").Path(__file__).resolve().parents[2]))
+                                     cwd=str(ROOT))
         self.info = self._read()
 
     def _read(self) -> dict:

@@ -95,6 +95,7 @@ class DemoApp:
         self._generation = self.ctl.generation
         self.view = SimulationView(self.ctl.sim, surface=True, particles=True, springs=True)
         self.hand.cancel()
+        self.hand.warm()
         self.reset_camera()
 
     def _default_camera(self) -> CameraSpec:

@@ -113,6 +113,13 @@ class MouseHand:
             self.ctl.poke(h.index, h.ray)
             self.last = f"poked particle {h.index}"
 
+    def warm(self):
+        """Compile what a press runs (the positions' read-back, the grab's field writes) now,
+        while the window is being set up, not in the first press's frame (measured: 160 ms)."""
+        self.ctl.sim.state.x.to_numpy()
+        self.ctl.grab.move(self.ctl.grab.target.to_numpy())
+        self._triangles()
+
     def cancel(self):
         """Forget a press without acting on it (the simulation was replaced or reset)."""
         self.held = None

@@ -34,6 +34,9 @@ from ..forces import ForceEvaluator, auto_strategy
 SERIAL_MAX_PARTICLES = 4096
 SERIAL_MAX_PARTICLES_EXPLICIT = 20000
 NOT_DIVERGED = 2**31 - 1
+# The divergence check (the assignment's): a step diverged if a velocity is non-finite or its
+# |v|^2 exceeds this [m^2/s^2] (1000 m/s).
+DIVERGENCE_SPEED2 = 1e6
 
 
 @ti.data_oriented
@@ -61,7 +64,7 @@ class Integrator:
         self.n = model.n_particles
         self.options = self.parse_options(options or {})
         self.speed2_limit = ti.field(float, ())  # divergence threshold on |v|^2 [m^2/s^2]
-        self.speed2_limit[None] = 1e6
+        self.speed2_limit[None] = DIVERGENCE_SPEED2
         self.diverged_step = ti.field(ti.i32, ())
         self.diverged_step[None] = NOT_DIVERGED
         self.mode = self.options["mode"]

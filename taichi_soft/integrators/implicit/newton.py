@@ -10,6 +10,7 @@ term by default. Line search, contact and stopping are the shared driver's (driv
 import taichi as ti
 
 from ...linalg import PCG
+from ...model import code_spring
 from ..base import register
 from . import options as opt
 from . import slots as S
@@ -49,7 +50,7 @@ class ImplicitEuler(ImplicitIntegrator):
         diag = m.mass[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
         for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
             s = m.adj_spring[e]
-            diag += self.spring_hess[s if s >= 0 else -s - 1]
+            diag += self.spring_hess[code_spring(s)]
         pinv = ti.Matrix.zero(float, 3, 3)
         if self._free(i):
             if ti.static(self.terrain.has_contact):
@@ -74,7 +75,7 @@ class ImplicitEuler(ImplicitIntegrator):
             q = m.mass[i] * src[i] + self.fric_hess[i] @ src[i]
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 s = m.adj_spring[e]
-                q += self.spring_hess[s if s >= 0 else -s - 1] @ (src[i] - src[m.adj_other[e]])
+                q += self.spring_hess[code_spring(s)] @ (src[i] - src[m.adj_other[e]])
             dst[i] = self._filter(i, q)
         if ti.static(self._has_pairs()):
             self.pairs.apply(src, dst)

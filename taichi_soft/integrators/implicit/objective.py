@@ -20,6 +20,7 @@ multipliers are (docs/implicit.md).
 import taichi as ti
 
 from ...forces import spring_energy, spring_energy_derivatives
+from ...model import code_spring, end_b_spring, is_end_a
 from . import slots as S
 
 
@@ -127,10 +128,10 @@ class Objective:
             gi = m.mass[i] * (self.u[i] - self.yd[i])
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 s = m.adj_spring[e]
-                if s >= 0:
-                    gi += self.spring_grad[s]
+                if is_end_a(s):
+                    gi += self.spring_grad[code_spring(s)]
                 else:
-                    gi -= self.spring_grad[-s - 1]
+                    gi -= self.spring_grad[end_b_spring(s)]
             r = ti.Vector.zero(float, 3)
             if self._free(i):
                 if ti.static(self._has_pairs()):
