@@ -121,9 +121,13 @@ class TaichiRasterizer:
                     # The columns where every weight and their sum are >= 0 (each is linear in the
                     # column), widened by a pixel: the exact test below decides the edges.
                     x0, x1 = ti.f32(c0), ti.f32(c1)
+                    # The four (weights and their sum) as vectors indexed below: choosing between a
+                    # sum and an element inside the unrolled loop crashes Taichi 1.7's scalarize pass
+                    # when its IR optimisations are off (runtime.OPTIMIZE_ENV).
+                    slopes = ti.Vector([dx[0], dx[1], dx[2], dx.sum()])
+                    offsets = ti.Vector([b0[0], b0[1], b0[2], b0.sum()])
                     for k in ti.static(range(4)):
-                        slope = dx.sum() if k == 3 else dx[k]
-                        offset = b0.sum() if k == 3 else b0[k]
+                        slope, offset = slopes[k], offsets[k]
                         if slope > 0.0:
                             x0 = ti.max(x0, -offset / slope - 1.0)
                         elif slope < 0.0:
