@@ -240,17 +240,23 @@ class Objective:
     @ti.func
     def _grab_gradient(self, i, xi, gi, dt):
         """gi plus the grab's gradient (grab.py); its Hessian goes with the friction block. While
-        particle i is grabbed it counts in ``N_ACTIVE``: fast_mass_spring's prefactored matrix lacks
-        the grab's diagonal term, so it takes its held-particle path (the factor as a
-        preconditioner), as for a particle held by friction."""
+        particle i is grabbed it counts in ``N_ACTIVE`` unless the solver's matrix carries the grab
+        (``_grab_factored``): a matrix that lacks the grab's diagonal term takes the held-particle
+        path (the factor as a preconditioner), as for a particle held by friction."""
         _gv, gg, gh = self.model.grab.step_terms(i, xi, self.x_prev[i], dt)
         fh = ti.Matrix.zero(float, 3, 3)
         if ti.static(self.terrain.has_contact or self._has_pairs()):
             fh = self.fric_hess[i]  # this gradient's friction and pair blocks (written just before)
         self.fric_hess[i] = fh + gh * ti.Matrix.identity(float, 3)
-        if gh > 0:
+        if gh > 0 and not self._grab_factored(i):
             self.sc[S.N_ACTIVE] += 1.0
         return gi + gg
+
+    @ti.func
+    def _grab_factored(self, i):
+        """Whether the solver's matrix already carries the grab on particle i (fast_mass_spring's
+        factor does, local_global.py); otherwise a grabbed particle counts as held."""
+        return False
 
     @ti.func
     def _residual(self):
