@@ -41,6 +41,19 @@ def make_sim():
     return make
 
 
+# A tool the suite needs (Xvfb, a Vulkan device for GGUI, root for a small tmpfs) that is missing
+# fails the test: scripts/setup.sh installs them, so a skip would hide a broken set-up and every check
+# behind it. Set TAICHI_SOFT_ALLOW_MISSING_TOOLS=1 to skip those tests instead (said per test).
+ALLOW_MISSING_ENV = "TAICHI_SOFT_ALLOW_MISSING_TOOLS"
+
+
+def missing_tool(reason: str):
+    """Fail (default) or, with TAICHI_SOFT_ALLOW_MISSING_TOOLS=1, skip: a tool the test needs is missing."""
+    if os.environ.get(ALLOW_MISSING_ENV) == "1":
+        pytest.skip(reason)
+    pytest.fail(f"{reason}; run scripts/setup.sh, or set {ALLOW_MISSING_ENV}=1 to skip such tests", pytrace=False)
+
+
 def run_cli(*args, cwd=ROOT, timeout=600):
     """Run ``python main.py ARGS`` in a subprocess; returns the CompletedProcess (text)."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")

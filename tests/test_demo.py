@@ -1,5 +1,5 @@
 """The classroom demo: what each control does to the simulation (no window), the HUD wording and
-pacing, and one real window under a virtual X display (skipped without Xvfb or Vulkan)."""
+pacing, and one real window under a virtual X display (without Xvfb or Vulkan they fail, see conftest.missing_tool)."""
 import os
 import shutil
 import json
@@ -15,7 +15,7 @@ from taichi_soft.demo.controller import DemoController
 from taichi_soft.demo.pacing import Pacer
 from taichi_soft.integrators import names
 
-from conftest import ROOT
+from conftest import ROOT, missing_tool
 
 SMALL = ["body.0.n=3", "body.0.size=1.0", "body.0.center=[0, 1.0, 0]"]  # 27 particles: fast
 
@@ -231,7 +231,7 @@ def test_pacer_takes_real_time_steps_and_reports_falling_behind():
 def xvfb():
     """A virtual X display on a free number (Xvfb picks it: -displayfd); yields DISPLAY."""
     if shutil.which("Xvfb") is None:
-        pytest.skip("Xvfb is not installed (apt-get install xvfb)")
+        missing_tool("Xvfb is not installed (apt-get install xvfb)")
     read, write = os.pipe()
     proc = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
                             pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -240,7 +240,7 @@ def xvfb():
         number = f.readline().strip()
     if not number:
         proc.kill()
-        pytest.skip("Xvfb did not start")
+        missing_tool("Xvfb did not start")
     yield f":{number}"
     proc.terminate()
     proc.wait(timeout=10)
@@ -254,7 +254,7 @@ def test_demo_window_draws_the_scene_and_hud(xvfb, tmp_path):
                            "--set", "body.0.n=5", "--resolution", "640x400", "--frames", "8", "--screenshot", str(shot)],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     if proc.returncode == 2 and "Vulkan" in proc.stderr:
-        pytest.skip(f"no Vulkan device: {proc.stderr.strip()}")
+        missing_tool(f"no Vulkan device: {proc.stderr.strip()}")
     assert proc.returncode == 0, proc.stderr
     from PIL import Image
 
@@ -281,7 +281,7 @@ def test_every_advertised_control_works_through_real_x_input(xvfb, tmp_path):
                            "--resolution", "1024x640"], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=400)
     if "Vulkan" in proc.stderr and proc.returncode != 0 and "checks" not in proc.stdout:
-        pytest.skip(f"no Vulkan device: {proc.stderr.strip().splitlines()[-1]}")
+        missing_tool(f"no Vulkan device: {proc.stderr.strip().splitlines()[-1]}")
     lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
     assert lines, (proc.returncode, proc.stdout[-2000:], proc.stderr[-2000:])
     checks = json.loads(lines[-1])["checks"]
@@ -524,7 +524,7 @@ def test_the_mouse_grabs_pins_and_pokes_and_a_recorded_session_replays(xvfb, tmp
                            "--set", "body.0.rotation.degrees=0", "--set", "contact.restitution=0"],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     if "Vulkan" in proc.stderr and proc.returncode != 0 and "checks" not in proc.stdout:
-        pytest.skip(f"no Vulkan device: {proc.stderr.strip().splitlines()[-1]}")
+        missing_tool(f"no Vulkan device: {proc.stderr.strip().splitlines()[-1]}")
     lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
     assert lines, (proc.returncode, proc.stdout[-2000:], proc.stderr[-2000:])
     report = json.loads(lines[-1])

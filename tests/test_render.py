@@ -1,7 +1,8 @@
 """Offscreen rendering, video, compare mosaics and mesh export (docs/rendering.md).
 
 GGUI tests need a Vulkan device (Mesa's lavapipe is enough); it is probed once, in a subprocess
-so that a driver crash cannot take pytest down, and those tests skip with the reason if it fails.
+so that a driver crash cannot take pytest down; without one those tests fail with the reason
+(conftest.missing_tool).
 Frames are tiny and bodies small (n = 4) to keep the file fast on two CPU cores.
 """
 import functools
@@ -12,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import ROOT, run_cli
+from conftest import ROOT, missing_tool, run_cli
 from taichi_soft.render import overlay
 from taichi_soft.render.camera import CameraSpec, project, projection_matrix, scene_camera, view_matrix
 
@@ -38,7 +39,7 @@ def vulkan_probe() -> str | None:
 def vulkan():
     reason = vulkan_probe()
     if reason:
-        pytest.skip(f"no usable Vulkan device for GGUI offscreen rendering: {reason}")
+        missing_tool(f"no usable Vulkan device for GGUI offscreen rendering: {reason}")
 
 
 @pytest.fixture(scope="module")

@@ -459,6 +459,8 @@ def speed_markdown(result: dict) -> str:
         cfg = res["config"]
         out.append(f"### {cfg['arch']}, {cfg['precision']}")
         out.append("")
+        if cfg.get("optimize") is False:  # (runtime.OPTIMIZE_ENV: kernels the users do not get by default)
+            out += ["Kernels compiled **without** Taichi's IR optimisation passes (`TAICHI_SOFT_OPTIMIZE=0`).", ""]
         if "error" in res:
             out += [f"Failed: `{res['error']}`", ""]
             continue
