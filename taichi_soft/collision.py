@@ -62,45 +62,29 @@ def contact_radii(model) -> np.ndarray:
 
 
 @ti.data_oriented
-class BodyContacts:
-    """Particle-particle contact between different bodies of ``model``; coefficients from ``terrain``
-    (restitution, friction, bounce threshold: the scene's ``[contact]`` table)."""
+class BodyGrid:
+    """What both body-contact solvers share (this module's, after the step; the implicit solvers'
+    pairs, in it): each particle's body and contact radius, each body's bounding box, the particles
+    near another body, and the spatial hash's cells and buckets (edge ``cell`` [m])."""
 
-    def __init__(self, model, terrain):
-        self.model = model
-        self.terrain = terrain
+    def _init_grid(self, model):
         n = model.n_particles
         self.n = n
-        radii = contact_radii(model)
         self.table_size = table_size(n)
         self.n_bodies = len(model.bodies)
         self.body = ti.field(ti.i32, n)
-        self.near = ti.field(ti.i32, n)  # 1: within the contact distance of another body's box
+        self.radius = ti.field(float, n)
+        self.near = ti.field(ti.i32, n)  # 1: within ``cell`` of another body's box
         self.lo = ti.Vector.field(3, float, self.n_bodies)  # bounding box of each body [m]
         self.hi = ti.Vector.field(3, float, self.n_bodies)
-        self.radius = ti.field(float, n)
-        self.cell = ti.field(float, ())  # hash cell edge [m]: the largest contact distance
-        self.count = ti.field(ti.i32, self.table_size)
-        self.slots = ti.field(ti.i32, (self.table_size, CELL_CAPACITY))
-        self.contacts = ti.field(ti.i32, n)
-        self.dx = ti.Vector.field(3, float, n)
-        self.dv = ti.Vector.field(3, float, n)
-        self.overflows = ti.field(ti.i64, ())  # particles not hashed (bucket full), summed over steps
-        self.pairs = ti.field(ti.i64, ())  # contact pairs seen, summed over steps
+        self.cell = ti.field(float, ())  # hash cell edge [m]
         body = np.zeros(n, np.int32)
         for b, info in enumerate(model.bodies):
             body[info.particles] = b
         self.body.from_numpy(body)
+        radii = contact_radii(model)
         self.radius.from_numpy(radii.astype(model.real))
-        self.cell[None] = 2.0 * float(radii.max())
-
-    def stats(self) -> dict:
-        """Counters for the run summary: contact pairs and hash overflows, summed over all steps."""
-        return {"body_contact_pairs": int(self.pairs[None]), "body_contact_overflows": int(self.overflows[None])}
-
-    def reset(self):
-        self.overflows[None] = 0
-        self.pairs[None] = 0
+        return radii
 
     @ti.func
     def _cell_of(self, p):
@@ -113,8 +97,9 @@ class BodyContacts:
         return h & (self.table_size - 1)
 
     @ti.func
-    def apply(self, x: ti.template(), v: ti.template(), dt):
-        """Resolve contacts between bodies at state (x, v) in place (one pass, see module doc)."""
+    def _mark_near(self, x: ti.template()):
+        """Each body's bounding box at ``x``, then ``near`` = 1 for the particles within ``cell`` of
+        another body's box: only those are hashed (bodies apart cost a few passes, no lookups)."""
         for b in range(self.n_bodies):
             self.lo[b] = ti.Vector([1e30, 1e30, 1e30], dt=float)
             self.hi[b] = ti.Vector([-1e30, -1e30, -1e30], dt=float)
@@ -123,16 +108,50 @@ class BodyContacts:
             for c in ti.static(range(3)):
                 ti.atomic_min(self.lo[b][c], x[i][c])
                 ti.atomic_max(self.hi[b][c], x[i][c])
-        for h in range(self.table_size):
-            self.count[h] = 0
         for i in range(self.n):
             self.near[i] = 0
             xi, reach = x[i], self.cell[None]
             for b in range(self.n_bodies):
                 if b != self.body[i] and all(xi >= self.lo[b] - reach) and all(xi <= self.hi[b] + reach):
                     self.near[i] = 1
+
+
+@ti.data_oriented
+class BodyContacts(BodyGrid):
+    """Particle-particle contact between different bodies of ``model``; coefficients from ``terrain``
+    (restitution, friction, bounce threshold: the scene's ``[contact]`` table)."""
+
+    def __init__(self, model, terrain):
+        self.model = model
+        self.terrain = terrain
+        radii = self._init_grid(model)
+        n = self.n
+        self.count = ti.field(ti.i32, self.table_size)
+        self.slots = ti.field(ti.i32, (self.table_size, CELL_CAPACITY))
+        self.contacts = ti.field(ti.i32, n)
+        self.dx = ti.Vector.field(3, float, n)
+        self.dv = ti.Vector.field(3, float, n)
+        self.overflows = ti.field(ti.i64, ())  # particles not hashed (bucket full), summed over steps
+        self.pairs = ti.field(ti.i64, ())  # contact pairs seen, summed over steps
+        self.cell[None] = 2.0 * float(radii.max())  # the largest contact distance
+
+    def stats(self) -> dict:
+        """Counters for the run summary: contact pairs and hash overflows, summed over all steps."""
+        return {"body_contact_pairs": int(self.pairs[None]), "body_contact_overflows": int(self.overflows[None])}
+
+    def reset(self):
+        self.overflows[None] = 0
+        self.pairs[None] = 0
+
+    @ti.func
+    def apply(self, x: ti.template(), v: ti.template(), dt):
+        """Resolve contacts between bodies at state (x, v) in place (one pass, see module doc)."""
+        self._mark_near(x)
+        for h in range(self.table_size):
+            self.count[h] = 0
+        for i in range(self.n):
             if self.near[i]:
-                h = self._bucket(self._cell_of(xi))
+                h = self._bucket(self._cell_of(x[i]))
                 k = ti.atomic_add(self.count[h], 1)
                 if k < CELL_CAPACITY:
                     self.slots[h, k] = i

@@ -24,6 +24,31 @@ from ...model import code_spring, end_b_spring, is_end_a
 from . import slots as S
 
 
+
+@ti.func
+def lagged_friction(disp, nrm, c, eps):
+    """Lagged Coulomb friction of a displacement ``disp`` [m] against a contact of normal ``nrm``:
+    (energy [kg m^2], gradient [kg m], Hessian [kg]) of c f0(|u_t|), u_t = (I - N N^T) disp,
+    c = mu lam [kg m] (lam = h^2 |F_n| frozen), f0 the Huber function: quadratic below ``eps`` =
+    friction_velocity * h [m], linear beyond. The terrain's contacts (``_friction``) and the
+    pairs between bodies (pairs.py) both use it."""
+    tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+    u = tp @ disp
+    sl = u.norm()
+    energy = ti.cast(0.0, float)
+    grad = ti.Vector.zero(float, 3)
+    hess = ti.Matrix.zero(float, 3, 3)
+    if sl < eps:
+        energy = 0.5 * c * sl * sl / eps
+        grad = (c / eps) * u
+        hess = (c / eps) * tp
+    else:
+        energy = c * (sl - 0.5 * eps)
+        grad = (c / sl) * u
+        hess = (c / sl) * tp
+    return energy, grad, hess
+
+
 @ti.data_oriented
 class Objective:
     """Mixin of ``ImplicitIntegrator``: fields and ti.funcs of the objective."""
@@ -75,23 +100,8 @@ class Objective:
         never carries the particle past the point where friction stops it, which the exact Hessian,
         with no curvature along u_t, would; it is PSD and continuous at eps.
         """
-        tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-        u = tp @ (xi - self.x_prev[i] - self.u_base[i])
-        sl = u.norm()
-        eps = self.fric_eps[None]
-        c = self.terrain.friction[None] * lam
-        energy = ti.cast(0.0, float)
-        grad = ti.Vector.zero(float, 3)
-        hess = ti.Matrix.zero(float, 3, 3)
-        if sl < eps:
-            energy = 0.5 * c * sl * sl / eps
-            grad = (c / eps) * u
-            hess = (c / eps) * tp
-        else:
-            energy = c * (sl - 0.5 * eps)
-            grad = (c / sl) * u
-            hess = (c / sl) * tp
-        return energy, grad, hess
+        return lagged_friction(xi - self.x_prev[i] - self.u_base[i], nrm, self.terrain.friction[None] * lam,
+                               self.fric_eps[None])
 
     @ti.func
     def _spring_terms(self, x: ti.template(), s, dt):

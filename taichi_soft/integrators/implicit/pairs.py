@@ -32,11 +32,11 @@ different bodies overlaps by o = R_ij - |x_i - x_j|, R_ij = r_i + r_j. Per step
   busier particle; the driver scales all bounces of a step to the energy the step lost.
 """
 
-import numpy as np
 import taichi as ti
 
-from ...collision import contact_radii, table_size
+from ...collision import BodyGrid, table_size
 from . import slots as S
+from .objective import lagged_friction
 
 # Capacity of the candidate list per particle (overflow is counted). The pile scene needs under 1 per
 # particle (525 candidates for 683 particles at 1/60 s); a fast body widens the slack and with it the list.
@@ -56,7 +56,7 @@ def field_bytes(n_particles: int, real_bytes: int) -> int:
 
 
 @ti.data_oriented
-class PairContacts:
+class PairContacts(BodyGrid):
     """Contact between the bodies of ``owner.model`` inside ``owner``'s step (an ImplicitIntegrator)."""
 
     def __init__(self, owner, stiffness: float):
@@ -65,21 +65,13 @@ class PairContacts:
         self.owner = owner
         self.model = model
         self.terrain = owner.terrain
-        self.n = n
-        self.n_bodies = len(model.bodies)
+        radii = self._init_grid(model)  # (the boxes are at x_n)
         self.capacity = PAIRS_PER_PARTICLE * n
-        self.table_size = table_size(n)
         vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
-        self.body = ti.field(ti.i32, n)
-        self.radius = ti.field(float, n)
-        self.near = ti.field(ti.i32, n)
-        self.lo = vec(self.n_bodies)  # bounding box of each body at x_n [m]
-        self.hi = vec(self.n_bodies)
         self.r_max = ti.field(float, ())  # largest contact distance R_ij [m]
         self.kappa = ti.field(float, ())  # penalty stiffness [-], times m_ij / h^2 [N/m]
         self.kappa[None] = stiffness
         self.slack = ti.field(float, ())  # candidate distance beyond R_ij [m]; trust radius slack / 2
-        self.cell = ti.field(float, ())  # hash cell edge [m]
         self.move = ti.field(float, ())  # largest |x_trial - x_n| of the last trial [m]
         self.bucket_count = ti.field(ti.i32, self.table_size)
         self.bucket_start = ti.field(ti.i32, self.table_size + 1)
@@ -95,12 +87,6 @@ class PairContacts:
         self.dv = vec(n)  # restitution velocity change [m/s]
         self.touch = ti.field(ti.i32, n)  # pairs in contact at the end of the step
         self.acc = ti.field(ti.f64, N_PACC)
-        body = np.zeros(n, np.int32)
-        for b, info in enumerate(model.bodies):
-            body[info.particles] = b
-        radii = contact_radii(model)
-        self.body.from_numpy(body)
-        self.radius.from_numpy(radii.astype(model.real))
         self.r_max[None] = 2.0 * float(radii.max())
 
     def stats(self, steps: float) -> dict:
@@ -125,16 +111,6 @@ class PairContacts:
 
     # -- geometry -------------------------------------------------------------------------------
     @ti.func
-    def _cell_of(self, p):
-        return ti.floor(p / self.cell[None], ti.i32)
-
-    @ti.func
-    def _bucket(self, c):
-        # Teschner et al. 2003 spatial hash; i32 products wrap, the mask keeps it in range.
-        h = (c.x * 73856093) ^ (c.y * 19349663) ^ (c.z * 83492791)
-        return h & (self.table_size - 1)
-
-    @ti.func
     def _reach(self, i, j):
         return self.radius[i] + self.radius[j]
 
@@ -154,25 +130,13 @@ class PairContacts:
             ti.atomic_max(self.slack[None], yd[i].norm())
         self.slack[None] = 2.0 * self.slack[None] + 0.5 * self.r_max[None]
         self.cell[None] = self.r_max[None] + self.slack[None]
-        for b in range(self.n_bodies):
-            self.lo[b] = ti.Vector([1e30, 1e30, 1e30], dt=float)
-            self.hi[b] = ti.Vector([-1e30, -1e30, -1e30], dt=float)
-        for i in range(self.n):
-            b = self.body[i]
-            for c in ti.static(range(3)):
-                ti.atomic_min(self.lo[b][c], xp[i][c])
-                ti.atomic_max(self.hi[b][c], xp[i][c])
+        self._mark_near(xp)
         for h in range(self.table_size):
             self.bucket_count[h] = 0
         self.n_pairs[None] = 0
         for i in range(self.n):
-            self.near[i] = 0
-            xi, reach = xp[i], self.cell[None]
-            for b in range(self.n_bodies):
-                if b != self.body[i] and all(xi >= self.lo[b] - reach) and all(xi <= self.hi[b] + reach):
-                    self.near[i] = 1
             if self.near[i]:
-                ti.atomic_add(self.bucket_count[self._bucket(self._cell_of(xi))], 1)
+                ti.atomic_add(self.bucket_count[self._bucket(self._cell_of(xp[i]))], 1)
         for _ in range(1):  # one thread: the prefix sum is sequential
             total = 0
             for h in range(self.table_size):
@@ -236,23 +200,7 @@ class PairContacts:
         x_i [kg m], Hessian block [kg]); the terrain's Huber-smoothed lagged friction on the relative
         tangential displacement."""
         i, j = self.pa[p], self.pb[p]
-        tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-        u = tp @ (disp[i] - disp[j])
-        sl = u.norm()
-        eps = self.owner.fric_eps[None]
-        c = self.terrain.friction[None] * lam
-        energy = ti.cast(0.0, float)
-        grad = ti.Vector.zero(float, 3)
-        hess = ti.Matrix.zero(float, 3, 3)
-        if sl < eps:
-            energy = 0.5 * c * sl * sl / eps
-            grad = (c / eps) * u
-            hess = (c / eps) * tp
-        else:
-            energy = c * (sl - 0.5 * eps)
-            grad = (c / sl) * u
-            hess = (c / sl) * tp
-        return energy, grad, hess
+        return lagged_friction(disp[i] - disp[j], nrm, self.terrain.friction[None] * lam, self.owner.fric_eps[None])
 
     @ti.func
     def _normal(self, p, d, dist):
