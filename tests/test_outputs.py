@@ -74,12 +74,19 @@ def test_sigterm_during_a_render_leaves_the_old_outputs_and_no_junk(tmp_path):
     assert subprocess.run(args + ["--duration", "0.2"], capture_output=True).returncode == 0
     old_video, old_frames = _md5(video), sorted(p.name for p in frames.iterdir())
     proc = subprocess.Popen(args + ["--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 120
-    while time.time() < deadline and not any(p.name.startswith(".f.") for p in tmp_path.iterdir()):
-        time.sleep(0.2)
-    time.sleep(1.0)  # some frames staged
+
+    def staged():  # frames of this run already in its hidden staging folder (".f.<pid>.<hex>")
+        return sum(1 for d in tmp_path.iterdir() if d.name.startswith(f".f.{proc.pid}.") for _ in d.iterdir())
+
+    # Signal once the render is under way (frames staged), not after a guessed delay; the process
+    # ending first (an error) or no frame at all also end the wait.
+    hang_guard = time.monotonic() + 600  # only so that a hung run cannot hang the suite
+    while staged() < 3 and proc.poll() is None and time.monotonic() < hang_guard:
+        time.sleep(0.05)
+    in_progress = staged()
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
+    assert in_progress >= 3, err  # the signal hit a render in progress (60 s of video: far from its end)
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "SIGTERM" in err and "Traceback" not in err
     assert _md5(video) == old_video
