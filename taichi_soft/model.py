@@ -18,6 +18,7 @@ This module is the one home of two encodings every spring kernel relies on:
 They are ``ti.pyfunc``: callable from Python and from kernels alike.
 """
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,9 @@ from . import lattice, meshbody, slabs
 from .lattice import SPRING_KINDS
 
 N_KINDS = len(SPRING_KINDS)  # spring groups per body
+# What a ``Model`` setter changed (bits of the flags given to ``notify_model_changed``).
+CHANGED_SPRINGS = 1  # stiffnesses or damper coefficients
+CHANGED_MASSES = 2  # particle masses, pins included
 
 
 # -- the two encodings (one home; see the module docstring) ---------------------------------------
@@ -270,7 +274,7 @@ class Model:
         self._set_mass(self.mass_np.astype(self.real, copy=False))
         self._set_groups(np.asarray(group_k, dtype=self.real), np.asarray(group_kd, dtype=self.real), len(group_k))
         self.set_gravity(gravity)
-        self.mass_version = 0  # bumped by set_particle_mass
+        self._listeners = weakref.WeakSet()  # told of each change (``add_listener``)
 
     @ti.kernel
     def _set_mass(self, mass: ti.types.ndarray(ndim=1)):
@@ -378,6 +382,18 @@ class Model:
         return self.spring_group.to_numpy()[: self.n_springs]
 
     # -- run-time parameters -------------------------------------------------------------
+    # Each setter tells the listeners what it changed (``notify_model_changed(flags)``, flags the
+    # CHANGED_* bits): a solver that keeps something derived from the model (a factorised matrix,
+    # the total mass) refreshes only that, when told, instead of polling the fields every step.
+    def add_listener(self, listener):
+        """Call ``listener.notify_model_changed(flags)`` after each change (held weakly: a replaced
+        integrator stops listening when it is dropped)."""
+        self._listeners.add(listener)
+
+    def _changed(self, flags: int):
+        for listener in list(self._listeners):
+            listener.notify_model_changed(flags)
+
     def set_spring_params(self, body: int, kind: str, k: float | None = None, damping: float | None = None):
         """Change one body's stiffness [N/m] and/or damper coefficient [N s/m] of one spring kind."""
         g = spring_group(body, SPRING_KINDS.index(kind))
@@ -385,17 +401,21 @@ class Model:
             self.group_k[g] = k
         if damping is not None:
             self.group_kd[g] = damping
+        self._changed(CHANGED_SPRINGS)
+
+    def set_group_stiffness(self, k):
+        """Every spring group's stiffness [N/m] at once (an array of ``n_groups`` values)."""
+        k = np.asarray(k, dtype=np.float64)
+        self._set_groups(k.astype(self.real), self.group_kd.to_numpy()[: self.n_groups].astype(self.real), self.n_groups)
+        self._changed(CHANGED_SPRINGS)
 
     def set_particle_mass(self, mass: float, body: int | None = None):
-        """Set the mass [kg] of every free particle (of one body, or of all); pinned ones stay pinned.
-
-        Bumps ``mass_version`` so solvers that factorise a mass matrix know to refactorise.
-        """
+        """Set the mass [kg] of every free particle (of one body, or of all); pinned ones stay pinned."""
         sel = slice(None) if body is None else self.bodies[body].particles
         part = self.mass_np[sel]
         part[part > 0] = float(mass)
         self._set_mass(self.mass_np.astype(self.real, copy=False))
-        self.mass_version += 1
+        self._changed(CHANGED_MASSES)
 
     def has_grab(self) -> bool:
         """Whether steps on this model include a grab (``grab.attach``); a compile-time constant."""
@@ -403,11 +423,10 @@ class Model:
 
     def set_masses(self, particles, mass: float):
         """Set the mass [kg] of the ``particles`` (indices or a mask); 0 pins them (inverse mass 0:
-        forces no longer move them, every integrator keeps them at their own velocity). Bumps
-        ``mass_version``."""
+        forces no longer move them, every integrator keeps them at their own velocity)."""
         self.mass_np[particles] = float(mass)
         self._set_mass(self.mass_np.astype(self.real, copy=False))
-        self.mass_version += 1
+        self._changed(CHANGED_MASSES)
 
     def set_gravity(self, g):
         """Gravity [m/s^2] as a 3-vector."""

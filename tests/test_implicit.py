@@ -216,6 +216,14 @@ def test_refactorises_only_when_dt_or_stiffness_change():
     model.set_spring_params(0, "shear", k=5000.0)
     integ.advance(state, FRAME / 2, 2)
     assert integ.stats()["factorizations"] == 3
+    integ.advance(state, FRAME / 2, 2)  # nothing changed: the model did not notify
+    assert integ.stats()["factorizations"] == 3
+    model.set_group_stiffness(2.0 * model.group_k.to_numpy()[: model.n_groups])  # (the stiffness sweeps)
+    integ.advance(state, FRAME / 2, 2)
+    assert integ.stats()["factorizations"] == 4
+    model.set_masses([0], 0.0)  # a pin
+    integ.advance(state, FRAME / 2, 2)
+    assert integ.stats()["factorizations"] == 5
 
 
 def test_stats_report_per_step_work():

@@ -70,7 +70,7 @@ class SceneProbe:
         self.last_reason = ""
 
     def set_stiffness_scale(self, scale: float):
-        self.sim.model.group_k.from_numpy((self.base_k * scale).astype(self.base_k.dtype))
+        self.sim.model.set_group_stiffness(self.base_k[: self.sim.model.n_groups] * scale)
 
     def __call__(self, dt: float) -> bool:
         sim = self.sim

@@ -69,6 +69,7 @@ class Integrator:
         self.diverged_step[None] = NOT_DIVERGED
         self.mode = self.options["mode"]
         self._step_counter = 0
+        model.add_listener(self)
         # Body-body contact (collision.BodyContacts) or None; read with ti.static at first compile,
         # so it must be set before the first step.
         self.contacts = None
@@ -148,6 +149,10 @@ class Integrator:
         """Forget divergence and any history (call after resetting the state)."""
         self.diverged_step[None] = NOT_DIVERGED
         self._step_counter = 0
+
+    def notify_model_changed(self, flags: int):
+        """The model's springs or masses changed (``model.CHANGED_*`` bits); integrators that keep
+        something derived from them refresh it here. The explicit ones read the fields each step."""
 
     def stats(self) -> dict:
         """Per-step work counters for the run summary."""

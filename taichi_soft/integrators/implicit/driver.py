@@ -21,6 +21,7 @@ parallel driver (``_solve_python``, one launch per phase) only sequence them.
 import numpy as np
 import taichi as ti
 
+from ...model import CHANGED_MASSES
 from ..base import Integrator
 from . import slots as S
 from .contact import ContactSet
@@ -89,7 +90,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         # The energy account assumes no pinned particle does work on the body.
         self.clamp_on[None] = int(o["energy_clamp"] and not np.any(model.mass_np <= 0))
         self.release_tol[None] = max(self._tol(), 0.1)
-        self._mass_version = None
+        self._masses_changed = True  # (notify_model_changed) total mass and translation test to refresh
 
     # Body-body contact lives inside the step (pairs.py): setting ``contacts`` (Simulation does, for
     # a scene with several bodies, before the first step) builds the pair terms; None builds none,
@@ -496,14 +497,19 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         bad = int(self.diverged_step[None])
         return bad - start + 1 if self.diverged else n_steps
 
+    def notify_model_changed(self, flags: int):
+        super().notify_model_changed(flags)
+        if flags & CHANGED_MASSES:
+            self._masses_changed = True
+
     def _sync_masses(self):
         """Total free mass [kg] into its field when the masses changed (``Model.set_particle_mass``,
         ``set_masses``: pinning one ends the step's translation invariance)."""
-        if self._mass_version != self.model.mass_version:
+        if self._masses_changed:
             mass = self.model.mass_np
             self.total_mass[None] = float(np.sum(mass[mass > 0])) or 1.0
             self.translation_free[None] = int(not self.terrain.has_contact and not (mass <= 0).any())
-            self._mass_version = self.model.mass_version
+            self._masses_changed = False
 
     def reset(self):
         super().reset()

@@ -12,6 +12,7 @@ two-level preconditioner for ``implicit_euler``'s PCG: 3-4x fewer CG iterations,
 import taichi as ti
 
 from ...linalg import SkylineCholesky
+from ...model import CHANGED_MASSES, CHANGED_SPRINGS
 
 CHOLESKY_AUTO_MAX = 10_000_000  # largest factor envelope [values] an "auto" option factorises
 
@@ -33,14 +34,18 @@ class LaplacianMatrix:
         self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
         self.diag = ti.field(float, model.n_particles)  # diagonal of M + L [kg] (0 for pinned particles)
         self.chol = SkylineCholesky(model.n_particles, model.pairs_np) if factorise else None
-        self._matrix_key = None
+        self._matrix_dt = None  # the dt [s] A was built for; None: rebuild (the model changed)
         self.factorizations = 0
 
+    def notify_model_changed(self, flags: int):
+        super().notify_model_changed(flags)
+        if flags & (CHANGED_SPRINGS | CHANGED_MASSES):
+            self._matrix_dt = None
+
     def _prepare_laplacian(self, dt: float):
-        """(Re)build A when dt, a stiffness, a damper coefficient or a mass changed; factorise it."""
-        key = (float(dt), self.model.group_k.to_numpy().tobytes(), self.model.group_kd.to_numpy().tobytes(),
-               self.model.mass_version)
-        if key == self._matrix_key:
+        """(Re)build A when dt changed or the model said a stiffness, a damper coefficient or a
+        mass did (``notify_model_changed``); factorise it."""
+        if float(dt) == self._matrix_dt:
             return
         self._k_weights(dt)
         if self.chol is not None:
@@ -48,7 +53,7 @@ class LaplacianMatrix:
             self.chol.factor()
             if not self.chol.ok[None]:
                 raise FloatingPointError(f"{self.name}: the matrix M + L is not positive definite (negative stiffness?)")
-        self._matrix_key = key
+        self._matrix_dt = float(dt)
         self.factorizations += 1
 
     @ti.kernel
