@@ -96,8 +96,7 @@ class Simulation:
             options = data.get("solver", {})
         # Body-body contact only where there are bodies to collide: a one-body scene compiles none.
         self.contacts = BodyContacts(self.model, self.terrain) if len(self.model.bodies) > 1 else None
-        self.integrator = make_integrator(self.integrator_name, self.model, self.terrain, options)
-        self.integrator.contacts = self.contacts
+        self.integrator = make_integrator(self.integrator_name, self.model, self.terrain, options, self.contacts)
         self.diagnostics = Diagnostics(self.model, self.terrain)
         self.state = self.model.state()
         self.dt = float(dt if dt is not None else data["sim"]["dt"])
@@ -136,11 +135,14 @@ class Simulation:
 
     def set_integrator(self, integrator):
         """Continue from the current state with another integrator (an ``Integrator`` built on
-        this simulation's model and terrain, or a registered name)."""
+        this simulation's model, terrain and ``contacts``, or a registered name)."""
         if isinstance(integrator, str):
-            integrator = make_integrator(integrator, self.model, self.terrain, self.scene.data.get("solver", {}))
+            integrator = make_integrator(integrator, self.model, self.terrain, self.scene.data.get("solver", {}),
+                                         self.contacts)
+        if integrator.model is not self.model or integrator.contacts is not self.contacts:
+            raise ValueError("an integrator for this simulation is built on its model and its contacts "
+                             "(make_integrator(name, sim.model, sim.terrain, options, sim.contacts))")
         integrator.reset()
-        integrator.contacts = self.contacts
         self.integrator = integrator
         self.integrator_name = integrator.name
 

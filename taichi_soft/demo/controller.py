@@ -215,7 +215,8 @@ class DemoController:
             return
         integ = self._integrators.get(name)
         if integ is None:
-            integ = make_integrator(name, self.sim.model, self.sim.terrain, self._options(name, self.sim.scene))
+            integ = make_integrator(name, self.sim.model, self.sim.terrain, self._options(name, self.sim.scene),
+                                    self.sim.contacts)
             self._integrators[name] = integ
         self.sim.set_integrator(integ)
         self.settings.integrator = name

@@ -14,10 +14,12 @@ def names() -> list[str]:
     return list(REGISTRY)
 
 
-def make_integrator(name: str, model, terrain, options: dict | None = None) -> Integrator:
-    """Instantiate the integrator called ``name``; unknown names raise ``UserError`` listing the valid ones."""
+def make_integrator(name: str, model, terrain, options: dict | None = None, contacts=None) -> Integrator:
+    """Instantiate the integrator called ``name`` (``contacts``: the simulation's
+    ``collision.BodyContacts``, or None for one body); unknown names raise ``UserError`` listing
+    the valid ones."""
     try:
         cls = REGISTRY[name]
     except KeyError:
         raise UserError(f"unknown integrator {name!r}; choose one of: {', '.join(REGISTRY)}") from None
-    return cls(model, terrain, options)
+    return cls(model, terrain, options, contacts)

@@ -58,7 +58,7 @@ class Integrator:
                    "stored) or gather (each particle evaluates its springs)"),
     }
 
-    def __init__(self, model, terrain, options: dict | None = None):
+    def __init__(self, model, terrain, options: dict | None = None, contacts=None):
         self.model = model
         self.terrain = terrain
         self.n = model.n_particles
@@ -70,9 +70,9 @@ class Integrator:
         self.mode = self.options["mode"]
         self._step_counter = 0
         model.add_listener(self)
-        # Body-body contact (collision.BodyContacts) or None; read with ti.static at first compile,
-        # so it must be set before the first step.
-        self.contacts = None
+        # Body-body contact (collision.BodyContacts, shared by every integrator of a simulation) or
+        # None: given at construction, read with ti.static when the step compiles.
+        self.contacts = contacts
         # Explicit methods step through the fused force passes. Implicit solvers assemble their
         # own objective over the adjacency and allocate no force-pass buffers.
         self.forces = None

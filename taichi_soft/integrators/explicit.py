@@ -29,8 +29,8 @@ class ExplicitRungeKutta(Integrator):
     A: list = []
     b: list = []
 
-    def __init__(self, model, terrain, options=None):
-        super().__init__(model, terrain, options)
+    def __init__(self, model, terrain, options=None, contacts=None):
+        super().__init__(model, terrain, options, contacts)
         stages = len(self.b)
         # One stage with gathered forces reads the old state while writing the new: ping-pong.
         if stages == 1 and self.forces.strategy == "gather":
@@ -136,8 +136,8 @@ class SemiImplicitEuler(Integrator):
     force_evals = 1
     description = "symplectic Euler: velocity first, then position with the new velocity (1 force eval)"
 
-    def __init__(self, model, terrain, options=None):
-        super().__init__(model, terrain, options)
+    def __init__(self, model, terrain, options=None, contacts=None):
+        super().__init__(model, terrain, options, contacts)
         if self.forces.strategy == "gather":
             self._use_ping_pong()
 

@@ -45,8 +45,8 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
     order = 1
     force_evals = 0
 
-    def __init__(self, model, terrain, options=None):
-        super().__init__(model, terrain, options)
+    def __init__(self, model, terrain, options=None, contacts=None):
+        super().__init__(model, terrain, options, contacts)
         self._init_objective(model)
         self._init_contact()
         self._init_restitution()
@@ -92,9 +92,10 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         self.release_tol[None] = max(self._tol(), 0.1)
         self._masses_changed = True  # (notify_model_changed) total mass and translation test to refresh
 
-    # Body-body contact lives inside the step (pairs.py): setting ``contacts`` (Simulation does, for
-    # a scene with several bodies, before the first step) builds the pair terms; None builds none,
-    # so a one-body scene compiles no pair code. The explicit methods' pass after the step is not run.
+    # Body-body contact lives inside the step (pairs.py): ``contacts`` given at construction
+    # (Simulation gives its own, for a scene with several bodies) builds the pair terms; None builds
+    # none, so a one-body scene compiles no pair code. The explicit methods' pass after the step is
+    # not run.
     @property
     def contacts(self):
         return self._contacts

@@ -33,7 +33,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
     OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.spec(opt.LOCAL_GLOBAL)}
 
-    def __init__(self, model, terrain, options=None):
+    def __init__(self, model, terrain, options=None, contacts=None):
         n = model.n_particles
         chosen = self.parse_options(options or {})
         solver = chosen["global_solver"]
@@ -61,7 +61,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             self.lb_x = ti.Vector.field(3, float, n)  # the iterate of the last direction, as u = x - x_n [m]
             self.lb_r = ti.Vector.field(3, float, n)  # its rhs [kg m]
             self.lb_dot = ti.field(float, ())
-        super().__init__(model, terrain, options)
+        super().__init__(model, terrain, options, contacts)
 
     def _tol(self):
         return self.options["tol"]

@@ -26,12 +26,12 @@ class ImplicitEuler(ImplicitIntegrator):
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
     OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.spec(opt.NEWTON)}
 
-    def __init__(self, model, terrain, options=None):
+    def __init__(self, model, terrain, options=None, contacts=None):
         n, m = model.n_particles, max(model.n_springs, 1)
         self.spring_hess = ti.Matrix.field(3, 3, float, m)  # h^2 (PSD spring Hessian) + h kd l l^T [kg]
         self.precond = ti.Matrix.field(3, 3, float, n)  # inverse 3x3 diagonal blocks [1/kg]
         self.pcg = PCG(n)
-        super().__init__(model, terrain, options)
+        super().__init__(model, terrain, options, contacts)
 
     def _tol(self):
         return self.options["newton_tol"]
