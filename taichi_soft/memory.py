@@ -216,9 +216,13 @@ def rows_bytes(scene_data: dict, n_p: int, real: int) -> int:
 
 def field_counts(integrator: str, family: str = "scatter", cholesky: bool = False) -> FieldCounts:
     """Per-particle and per-spring field entries of the model, state and ``integrator`` with the
-    force strategy ``family`` (an unknown integrator counts as RK4); ``cholesky``: with the
-    factor's index fields (its values are counted by ``_cholesky_values``)."""
-    counts = FIELDS.get((integrator, family), FIELDS[("rk4", family)])
+    force strategy ``family``; ``cholesky``: with the factor's index fields (its values are counted
+    by ``_cholesky_values``). An integrator without an entry in ``FIELDS`` is an error: its memory
+    is not known, and another method's numbers would pass a run the machine cannot hold."""
+    if (integrator, family) not in FIELDS:
+        raise KeyError(f"memory.FIELDS has no entry for integrator {integrator!r} ({family} forces): add its "
+                       "field counts (tests/test_memory.py measures them)")
+    counts = FIELDS[(integrator, family)]
     if cholesky:
         counts = counts + FIELDS["cholesky"]
     return counts

@@ -115,3 +115,8 @@ def test_check_fits_and_available(monkeypatch):
     # f32 needs less than f64; recorded states need more
     assert memory.estimate_bytes(data, None, "f32", "cpu") < need
     assert memory.estimate(data, None, "f64", "cpu", record_states=True)["host"] > need
+
+
+def test_an_integrator_without_field_counts_is_an_error_not_another_methods_numbers():
+    with pytest.raises(KeyError, match="no entry for integrator 'toy'"):
+        memory.field_counts("toy")
