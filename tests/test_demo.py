@@ -484,13 +484,39 @@ def test_recorded_inputs_replay_to_the_same_state(fresh):
     fresh.set_contact(friction=0.3)
 
 
-def test_picking_finds_the_particle_under_the_cursor():
-    from taichi_soft.demo.picking import pick, pick_surface, plane_point, view_ray
-    from taichi_soft.lattice import lattice_points, surface_triangles
+def pick_surface(points: np.ndarray, triangles: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> int | None:
+    """Reference for ``surface_pick.SurfacePicker`` in numpy: the nearest ``triangles`` [m, 3]
+    (particle indices) crossed in front of the origin (Moller-Trumbore), and of that triangle the
+    corner nearest the hit point. None if the ray crosses no triangle."""
+    a, b, c = points[triangles[:, 0]], points[triangles[:, 1]], points[triangles[:, 2]]
+    e1, e2 = b - a, c - a
+    p = np.cross(direction, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = origin - a
+    u = np.einsum("ij,ij->i", s, p) * inv
+    q = np.cross(s, e1)
+    v = (q @ direction) * inv
+    t = np.einsum("ij,ij->i", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+    if not hit.any():
+        return None
+    k = np.flatnonzero(hit)[np.argmin(t[hit])]
+    corners = triangles[k]
+    return int(corners[np.argmin(np.linalg.norm(points[corners] - (origin + t[k] * direction), axis=1))])
+
+
+def test_picking_finds_the_particle_under_the_cursor(make_sim):
+    from taichi_soft.demo.picking import pick, plane_point, view_ray
+    from taichi_soft.demo.surface_pick import SurfacePicker
+    from taichi_soft.lattice import surface_triangles
     from taichi_soft.render.camera import CameraSpec, project
 
     n = 3
-    g = lattice_points(n, 1.0)
+    sim = make_sim("plane", ["body.0.n=3", "body.0.size=1.0", "body.0.center=[0, 0, 0]", "body.0.rotation.degrees=0"])
+    g = sim.state.x.to_numpy().astype(np.float64)
+    picker = SurfacePicker(sim.model)
     cam = CameraSpec((3.0, 2.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0)
     w, h = 800, 600
     tri = surface_triangles(n)
@@ -499,9 +525,19 @@ def test_picking_finds_the_particle_under_the_cursor():
         col, row = project(g[i][None], cam, w, h)[0]
         o, d = view_ray(cam, col / w, 1 - row / h, w / h)
         assert np.linalg.norm(np.cross(g[i] - o, d)) < 1e-9  # the ray passes through the point
-        visible = pick_surface(g, tri, o + 1e-6 * d, d)
         if np.linalg.norm(g[i] - eye) <= np.linalg.norm(g - eye, axis=1).min() + 1e-9:
-            assert visible == i  # the corner nearest the camera is picked
+            assert pick_surface(g, tri, o, d) == i  # the corner nearest the camera is picked
+            assert picker.pick(sim.state.x, o, d)[0] == i
+    # The device picker against numpy on rays through each triangle's centre (a ray through a
+    # particle or along an edge is a tie that rounding may break either way), from two cameras.
+    for eye in (eye, np.array([-2.0, 3.0, -3.0])):
+        for k in range(len(tri)):
+            d = g[tri[k]].mean(axis=0) - eye
+            d /= np.linalg.norm(d)
+            on_device = picker.pick(sim.state.x, eye, d)
+            assert on_device is not None and on_device[0] == pick_surface(g, tri, eye, d)
+            np.testing.assert_allclose(on_device[1], g[on_device[0]], atol=1e-12)
+    assert picker.pick(sim.state.x, eye, -np.asarray(eye) / np.linalg.norm(eye) + [0.0, 0.8, 0.0]) is None  # sky
     # a ray just outside the silhouette picks the particle nearest it; a ray past the body: nothing
     o, d = view_ray(cam, 0.5, 0.5, w / h)
     assert pick(g, o, d + [0.0, 0.3, 0.0], 0.1) is None

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .picking import PICK_RADIUS, lattice_spacing, pick, pick_surface, plane_point, view_ray
+from .picking import PICK_RADIUS, lattice_spacing, pick, plane_point, view_ray
+from .surface_pick import SurfacePicker
 
 CLICK_SECONDS = 0.25  # a press released sooner than this without moving is a poke ...
 CLICK_FRAMES = 1  # ... or one released by the frame after the press (a slow window's quick click)
@@ -51,13 +52,13 @@ class MouseHand:
         self.held: _Held | None = None
         self.last: str | None = None  # what the last press did, for the HUD
 
-    def _triangles(self) -> np.ndarray:
-        """The drawn surface's triangles (particle indices) of the current simulation."""
+    def _picker(self) -> SurfacePicker:
+        """The ray-surface picker of the current simulation's model (a terrain switch builds a new one)."""
         model = self.ctl.sim.model
-        if getattr(self, "_tri_model", None) is not model:
-            self._tri = np.concatenate([np.reshape(b.surface, (-1, 3)) for b in model.bodies]).astype(np.int64)
-            self._tri_model = model
-        return self._tri
+        if getattr(self, "_picker_model", None) is not model:
+            self._surface_picker = SurfacePicker(model)
+            self._picker_model = model
+        return self._surface_picker
 
     def _ray(self, cursor, cam):
         return view_ray(cam, cursor[0], cursor[1], self.size[0] / self.size[1])
@@ -69,21 +70,23 @@ class MouseHand:
         """Left button down at ``cursor`` (GGUI's (u, v), v up) seen by camera ``cam`` (a
         ``CameraSpec``); returns the particle picked, or None if the ray missed the body."""
         origin, direction = self._ray(cursor, cam)
-        points = self.ctl.sim.state.x.to_numpy().astype(np.float64, copy=False)
-        i = pick_surface(points, self._triangles(), origin, direction)
-        if i is None:
+        hit = self._picker().pick(self.ctl.sim.state.x, origin, direction)
+        if hit is None:  # off the surface: the particle nearest the ray, if close (an edge, a corner)
+            points = self.ctl.sim.state.x.to_numpy().astype(np.float64, copy=False)
             i = pick(points, origin, direction, PICK_RADIUS * lattice_spacing(self.ctl.sim.model))
-        if i is None:
+            hit = None if i is None else (i, points[i].copy())
+        if hit is None:
             self.last = None
             return None
+        i, at = hit
         if shift or self.pin_mode:
             self.ctl.toggle_pin(i)
             self.last = f"{'pinned' if i in self.ctl.pins else 'unpinned'} particle {i}"
             return i
         forward = np.subtract(cam.lookat, cam.position)
         forward /= np.linalg.norm(forward)
-        self.held = _Held(i, points[i].copy(), forward, direction, self._pixel(cursor), self.clock())
-        self.ctl.grab_particle(i, points[i])
+        self.held = _Held(i, at, forward, direction, self._pixel(cursor), self.clock())
+        self.ctl.grab_particle(i, at)
         self.last = f"grabbed particle {i}"
         return i
 
@@ -118,7 +121,7 @@ class MouseHand:
         while the window is being set up, not in the first press's frame (measured: 160 ms)."""
         self.ctl.sim.state.x.to_numpy()
         self.ctl.grab.move(self.ctl.grab.target.to_numpy())
-        self._triangles()
+        self._picker().pick(self.ctl.sim.state.x, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
 
     def cancel(self):
         """Forget a press without acting on it (the simulation was replaced or reset)."""

@@ -1,8 +1,8 @@
 """From the cursor to the body: the view ray under a pixel, the particle it hits, the drag point.
 
-A press picks on the drawn surface first (the triangle the ray crosses first, its nearest corner);
-a ray that misses the surface but passes close to a particle (just outside an edge or a corner)
-picks the particle nearest the ray.
+A press picks on the drawn surface first (the triangle the ray crosses first, its nearest corner:
+``surface_pick``, on the device); a ray that misses the surface but passes close to a particle
+(just outside an edge or a corner) picks the particle nearest the ray (``pick``).
 
 Pure numpy (no window): the camera is a ``render.camera.CameraSpec`` (GGUI's conventions: vertical
 ``fov``, the image spanning the whole window), the cursor GGUI's ``get_cursor_pos()`` (u, v) in
@@ -53,30 +53,6 @@ def pick(points: np.ndarray, origin: np.ndarray, direction: np.ndarray, radius: 
         return None
     candidates = np.flatnonzero(hit)
     return int(candidates[np.argmin(miss2[candidates])])
-
-
-def pick_surface(points: np.ndarray, triangles: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> int | None:
-    """The particle the ray hits on the drawn surface: the nearest ``triangles`` [m, 3] (particle
-    indices) crossed in front of the origin (Moller-Trumbore, all triangles at once), and of that
-    triangle the corner nearest the hit point. None if the ray crosses no triangle."""
-    a, b, c = points[triangles[:, 0]], points[triangles[:, 1]], points[triangles[:, 2]]
-    e1, e2 = b - a, c - a
-    p = np.cross(direction, e2)
-    det = np.einsum("ij,ij->i", e1, p)
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    s = origin - a
-    u = np.einsum("ij,ij->i", s, p) * inv
-    q = np.cross(s, e1)
-    v = (q @ direction) * inv
-    t = np.einsum("ij,ij->i", e2, q) * inv
-    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
-    if not hit.any():
-        return None
-    k = np.flatnonzero(hit)[np.argmin(t[hit])]
-    at = origin + t[k] * direction
-    corners = triangles[k]
-    return int(corners[np.argmin(np.linalg.norm(points[corners] - at, axis=1))])
 
 
 def plane_point(origin: np.ndarray, direction: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
