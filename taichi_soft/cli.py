@@ -585,7 +585,8 @@ def cmd_demo_replay(args) -> int:
     """demo --replay: a recorded session played back without a display into a video."""
     from . import runtime
     from .demo.capture import default_path
-    from .demo.session import load_session, replay
+    from .demo.replay import replay
+    from .demo.session import load_session
 
     if args.record is not None:
         raise UserError("--record and --replay exclude each other")

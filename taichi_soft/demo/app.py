@@ -179,7 +179,7 @@ class DemoApp:
         self.timer.end_frame()
 
     def replay_frame(self, camera):
-        """Draw a frame of a replayed session (``session.replay``): the state its inputs left, seen
+        """Draw a frame of a replayed session (``replay.replay``): the state its inputs left, seen
         by the recorded ``camera`` = [eye, lookat, up, fov]."""
         self._sync_view()
         ctl = self.ctl
