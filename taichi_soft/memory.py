@@ -217,12 +217,19 @@ def rows_bytes(scene_data: dict, n_p: int, real: int) -> int:
 def field_counts(integrator: str, family: str = "scatter", cholesky: bool = False) -> FieldCounts:
     """Per-particle and per-spring field entries of the model, state and ``integrator`` with the
     force strategy ``family``; ``cholesky``: with the factor's index fields (its values are counted
-    by ``_cholesky_values``). An integrator without an entry in ``FIELDS`` is an error: its memory
-    is not known, and another method's numbers would pass a run the machine cannot hold."""
-    if (integrator, family) not in FIELDS:
+    by ``_cholesky_values``). A registered subclass of a method in ``FIELDS`` (one that changes its
+    steps, not its fields) counts as that method; any other integrator is an error: its memory is
+    not known, and another method's numbers would pass a run the machine cannot hold."""
+    from .integrators import REGISTRY
+
+    cls = REGISTRY.get(integrator)
+    for name in [integrator] + ([c.name for c in cls.__mro__ if hasattr(c, "name")] if cls else []):
+        if (name, family) in FIELDS:
+            break
+    else:
         raise KeyError(f"memory.FIELDS has no entry for integrator {integrator!r} ({family} forces): add its "
                        "field counts (tests/test_memory.py measures them)")
-    counts = FIELDS[(integrator, family)]
+    counts = FIELDS[(name, family)]
     if cholesky:
         counts = counts + FIELDS["cholesky"]
     return counts

@@ -21,11 +21,11 @@ restitution, the same for every method) and the divergence check (any non-finite
 first diverged step index.
 """
 
-import numpy as np
 import taichi as ti
 
 from ..errors import UserError
 from ..forces import ForceEvaluator, auto_strategy
+from .options import Option, one_of
 
 # Parallel launches win above this many particles on a CPU. Implicit solvers (many launches per
 # step in parallel mode): 4096. Explicit methods, semi-implicit Euler on the 2-core VM, f64,
@@ -48,14 +48,16 @@ class Integrator:
     force_evals = 0  # force evaluations per step
     implicit = False
     description = ""
-    # Options a scene's [solver] table (or --set solver.NAME=VALUE) may set:
-    # name -> (default, check(value) -> bool, what is allowed). Subclasses extend it.
+    # Options a scene's [solver] table (or --set solver.NAME=VALUE) may set (options.Option);
+    # subclasses extend it.
     OPTIONS = {
-        "mode": ("auto", lambda v: v in ("auto", "serial", "parallel"),
-                 "auto, serial (many steps per launch on one thread) or parallel (one launch per step)"),
-        "forces": ("auto", lambda v: v in ("auto", "scatter", "per_spring", "gather"),
-                   "auto, scatter (each spring once, added to both ends), per_spring (each spring once, "
-                   "stored) or gather (each particle evaluates its springs)"),
+        "mode": Option("auto", one_of("auto", "serial", "parallel"), "auto, serial or parallel",
+                       "serial: many steps per launch on one thread; parallel: one launch per step; "
+                       "auto: serial for small bodies on a CPU"),
+        "forces": Option("auto", one_of("auto", "scatter", "per_spring", "gather"),
+                         "auto, scatter, per_spring or gather",
+                         "scatter: each spring once, added to both ends; per_spring: each spring once, stored; "
+                         "gather: each particle evaluates its springs; auto: by backend and fast math"),
     }
 
     def __init__(self, model, terrain, options: dict | None = None, contacts=None):
@@ -86,13 +88,13 @@ class Integrator:
     @classmethod
     def parse_options(cls, given: dict) -> dict:
         """Defaults overlaid with ``given``; unknown names or bad values raise ``UserError``."""
-        out = {name: spec[0] for name, spec in cls.OPTIONS.items()}
+        out = {name: option.default for name, option in cls.OPTIONS.items()}
         for name, value in given.items():
             if name not in cls.OPTIONS:
                 raise UserError(f"solver.{name}: not an option of {cls.name}; its options are {', '.join(cls.OPTIONS)}")
-            _, check, allowed = cls.OPTIONS[name]
-            if not check(value):
-                raise UserError(f"solver.{name} = {value!r}: must be {allowed}")
+            option = cls.OPTIONS[name]
+            if not option.check(value):
+                raise UserError(f"solver.{name} = {value!r}: must be {option.allowed} ({option.doc})")
             out[name] = value
         return out
 

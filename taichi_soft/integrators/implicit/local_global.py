@@ -31,7 +31,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
 
     name = "fast_mass_spring"
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
-    OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.spec(opt.LOCAL_GLOBAL)}
+    OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.LOCAL_GLOBAL}
 
     def __init__(self, model, terrain, options=None, contacts=None):
         n = model.n_particles

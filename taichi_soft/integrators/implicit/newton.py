@@ -24,7 +24,7 @@ class ImplicitEuler(ImplicitIntegrator):
 
     name = "implicit_euler"
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
-    OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.spec(opt.NEWTON)}
+    OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.NEWTON}
 
     def __init__(self, model, terrain, options=None, contacts=None):
         n, m = model.n_particles, max(model.n_springs, 1)

@@ -1,81 +1,52 @@
-"""Options of the implicit integrators, typed and documented in one place.
+"""Options of the implicit integrators, typed and documented in one place (``..options.Option``).
 
-Each option is an ``Option`` (default, check, what is allowed, meaning with unit); ``spec()``
-turns a table into the ``OPTIONS`` mapping ``Integrator.parse_options`` reads. A scene sets them
-in its ``[solver]`` table or with ``--set solver.NAME=VALUE``; docs/implicit.md lists them.
+A scene sets them in its ``[solver]`` table or with ``--set solver.NAME=VALUE``; docs/implicit.md
+lists them.
 """
 
-from dataclasses import dataclass
-from typing import Any, Callable
-
-import numpy as np
-
-
-@dataclass(frozen=True)
-class Option:
-    default: Any
-    check: Callable[[Any], bool]
-    allowed: str  # what is allowed, for the error message
-    doc: str  # meaning, with its unit
-
-
-def _int_at_least(lo):
-    return lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= lo
-
-
-def _number_in(lo, hi, lo_open=False):
-    def check(v):
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v):
-            return False
-        return (v > lo if lo_open else v >= lo) and v <= hi
-    return check
-
-
-def _bool(v):
-    return isinstance(v, bool)
-
+from ..options import Option, int_at_least, is_bool, number_in
 
 # Options of both solvers: contact, line search, stopping, the last-resort energy clamp.
 SHARED = {
     "scheme": Option("backward_euler", lambda v: v in ("bdf2", "backward_euler"), "bdf2 or backward_euler",
                      "time discretisation: bdf2 (second order) on steps whose history is smooth and that touch "
                      "no terrain, backward Euler elsewhere; backward_euler (first order) on every step"),
-    "friction_velocity": Option(1e-3, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
+    "friction_velocity": Option(1e-3, number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
                                 "sliding speed [m/s] below which friction is smoothed (static-friction creep)"),
-    "velocity_tol": Option(1e-3, _number_in(0.0, 1e3), "a number in [0, 1000]",
+    "velocity_tol": Option(1e-3, number_in(0.0, 1e3), "a number in [0, 1000]",
                            "stop iterating once an update moves no particle faster than this [m/s] (0: off)"),
-    "line_search_iters": Option(12, _int_at_least(0), "an integer >= 0",
+    "line_search_iters": Option(12, int_at_least(0), "an integer >= 0",
                                 "most step halvings per iteration (backtracking on the step's objective)"),
-    "friction_updates": Option(4, _int_at_least(0), "an integer >= 0",
+    "friction_updates": Option(4, int_at_least(0), "an integer >= 0",
                                "most outer updates of the frozen friction multipliers per step"),
-    "cg_iters": Option(200, _int_at_least(1), "an integer >= 1", "most CG iterations per linear solve"),
-    "body_contact": Option(True, _bool, "true or false",
+    "cg_iters": Option(200, int_at_least(1), "an integer >= 1", "most CG iterations per linear solve"),
+    "body_contact": Option(True, is_bool, "true or false",
                            "contact between bodies inside the step (multi-body scenes; false: bodies pass "
                            "through each other, for comparisons)"),
-    "contact_stiffness": Option(1000.0, _number_in(1.0, 1e8), "a number in [1, 1e8]",
+    "contact_stiffness": Option(1000.0, number_in(1.0, 1e8), "a number in [1, 1e8]",
                                 "body-body contact penalty kappa [-]: a pair's stiffness is kappa m_ij / h^2, "
                                 "so an approach stops at about 1 / (1 + kappa) of the overlap it would make"),
-    "energy_clamp": Option(True, _bool, "true or false",
+    "energy_clamp": Option(True, is_bool, "true or false",
                            "last resort: scale velocities back if a step still ends with more energy than it "
                            "began with (every use is counted in stats())"),
 }
 
 NEWTON = {
     **SHARED,
-    "newton_iters": Option(20, _int_at_least(1), "an integer >= 1", "most Newton iterations per step"),
-    "newton_tol": Option(0.1, _number_in(0.0, 1e3), "a number in [0, 1000]",
+    "newton_iters": Option(20, int_at_least(1), "an integer >= 1", "most Newton iterations per step"),
+    "newton_tol": Option(0.1, number_in(0.0, 1e3), "a number in [0, 1000]",
                          "residual [m/s^2] at which Newton stops (0: only the other tests stop it)"),
     "forcing": Option("eisenstat_walker", lambda v: v in ("eisenstat_walker", "fixed"), "eisenstat_walker or fixed",
                       "CG tolerance per Newton iteration: min(0.5, sqrt(|r_k|/|r_0|)) (Eisenstat-Walker) "
                       "or the fixed cg_tol"),
-    "cg_tol": Option(1e-2, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
+    "cg_tol": Option(1e-2, number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
                      "relative (preconditioned) CG residual when forcing = fixed"),
 }
 
 LOCAL_GLOBAL = {
     **SHARED,
-    "iterations": Option(20, _int_at_least(1), "an integer >= 1", "most local/global iterations per step"),
-    "tol": Option(0.1, _number_in(0.0, 1e3), "a number in [0, 1000]",
+    "iterations": Option(20, int_at_least(1), "an integer >= 1", "most local/global iterations per step"),
+    "tol": Option(0.1, number_in(0.0, 1e3), "a number in [0, 1000]",
                   "residual [m/s^2] at which iterations stop early (0: only the other tests stop them)"),
     "global_solver": Option("auto", lambda v: v in ("auto", "cholesky", "pcg"), "auto, cholesky or pcg",
                             "cholesky: prefactored skyline Cholesky (under contact see contact_solve); "
@@ -85,14 +56,10 @@ LOCAL_GLOBAL = {
                             "scaled: one solve with the prefactored matrix and one block-Jacobi smoothing "
                             "step (friction), filtered, its length from the step's quadratic model; "
                             "pcg: the filtered system solved by PCG to cg_tol"),
-    "cg_tol": Option(0.1, _number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
+    "cg_tol": Option(0.1, number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
                      "relative CG residual of a global step (contact_solve = pcg, or global_solver = pcg)"),
-    "history": Option(5, lambda v: _int_at_least(0)(v) and v <= 32, "an integer in [0, 32]",
+    "history": Option(5, lambda v: int_at_least(0)(v) and v <= 32, "an integer in [0, 32]",
                       "L-BFGS pairs kept within a step, the global step as the initial inverse Hessian "
                       "(Liu, Bouaziz & Kavan 2017); 0: plain local/global iterations"),
 }
 
-
-def spec(table: dict) -> dict:
-    """``{name: (default, check, allowed)}`` as ``Integrator.OPTIONS`` expects."""
-    return {name: (o.default, o.check, f"{o.allowed} ({o.doc})") for name, o in table.items()}
