@@ -8,7 +8,7 @@ per-particle ti.func called from the phases of the step (docs/implicit.md, "Cont
   halves t until g(x_0) <= g(x_n)). Particles already on the surface whose predictor points
   inward are held from the start and move only along the surface. The predictor is never
   projected: that flattened several layers of the cube at large steps and started the solve far
-  above the energy the step began with (../shared/design/implicit-contact.md).
+  above the energy the step began with (docs/implicit.md, "One step, both solvers", item 2).
 * **Active set with hysteresis** (``_contact_gradient``): a held particle's normal is filtered
   out of the solve (Baraff & Witkin 1998, Sec. 5.3). It is released only when its multiplier is
   clearly negative, below -m h^2 max(tol, current residual) (an inexact iterate's force error is
