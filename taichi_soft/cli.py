@@ -160,7 +160,7 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True, pipeline=True)
         g.add_argument("--pipeline", choices=PIPELINES, default="auto",
                        help="serial: simulate, then render each frame in this process; overlap: a render "
                             "process draws frame k while this one simulates frame k+1 (same states, bit for bit); "
-                            "auto (default): serial (measured on 2 cores: docs/rendering.md)")
+                            "auto (default): overlap with --video/--frames, else serial (docs/rendering.md)")
     g.add_argument("--renderer", choices=RENDERERS, default="auto",
                    help="ggui: GGUI through Vulkan; taichi: Taichi kernels, no Vulkan needed, surfaces only; "
                         "auto (default): ggui on a Vulkan GPU or for --particles/--springs, else taichi")

@@ -22,7 +22,7 @@ which tells the render process to drop everything (the render process ignores th
 Ctrl-C to the terminal's process group cannot kill it half-way); a run's process that dies
 closes the pipe and the render process drops everything and exits.
 
-``auto`` is ``serial``: see ``choose_pipeline`` for the measurements behind that.
+``auto`` (the default) is ``overlap`` when frames are drawn: ``choose_pipeline`` says why.
 """
 from __future__ import annotations
 
@@ -48,16 +48,18 @@ class RenderProcessError(OutputError):
 def choose_pipeline(kind: str, options) -> str:
     """``"serial"`` or ``"overlap"`` for ``--pipeline kind`` and a run's ``RenderOptions``.
 
-    ``auto`` picks serial: on the 2-core VM the render process's start (a second Python with
-    Taichi, its kernels loaded from the cache) costs more than the overlap saves in the default
-    run (docs/rendering.md, "Overlap"). Without frames to render (meshes or caches only) there is
-    nothing to overlap, and overlap is refused as a bad combination.
+    ``auto`` picks overlap when frames are drawn (``--video``, ``--frames``): measured faster on
+    the 2-core VM, the render process's start-up (a second Python with Taichi, ~0.8 s CPU) included
+    (docs/rendering.md, "Overlap"); else serial. Without frames (meshes or caches only) there is
+    nothing to draw beside the simulation, and overlap is refused as a bad combination.
     """
     if kind not in PIPELINES:
         raise UserError(f"unknown pipeline {kind!r}; choose one of: {', '.join(PIPELINES)}")
     if kind == "overlap" and not options.needs_renderer:
         raise UserError("--pipeline overlap draws frames beside the simulation: it needs --video or --frames")
-    return "overlap" if kind == "overlap" else "serial"
+    if kind == "auto":
+        return "overlap" if options.needs_renderer else "serial"
+    return kind
 
 
 def _output_paths(options) -> list[tuple[Path, bool]]:
@@ -156,6 +158,12 @@ class RenderProcess:
         slot = self.free.pop(0)
         self.slots[slot][...] = x
         self.send("frame", slot, lines, cam, t)
+
+    def sync(self):
+        """Wait until every frame handed over is drawn, overlaid and in the encoder's pipe."""
+        self.send("sync")
+        while self.receive()[0] != "synced":
+            pass
 
     def finish(self, diverged_at) -> list[Path]:
         """Let the render process draw the rest, hold a diverged run's last frame and move its
@@ -305,6 +313,9 @@ def _render_main(conn, scene, options, runtime_args: dict):
                 mirror.state.x.from_numpy(slots[slot])
                 conn.send(("free", slot))
                 recorder.draw(lines, cam, t)
+            elif message[0] == "sync":  # every frame sent before drawn and written (benchmark.py)
+                recorder.writer.flush()
+                conn.send(("synced",))
             elif message[0] == "finish":
                 recorder.diverged_at = message[1]
                 paths = recorder.finish()
