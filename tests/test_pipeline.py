@@ -98,8 +98,9 @@ def test_overlap_gives_the_serial_states_and_frames(tmp_path):
     assert [p.name for p in serial] == [p.name for p in overlap] and len(serial) == 7
     for p, q in zip(serial, overlap):  # the same kernels draw the same positions and overlay
         assert np.array_equal(np.asarray(Image.open(p)), np.asarray(Image.open(q))), p.name
-    first = np.asarray(Image.open(overlap[0])).astype(int)
-    assert ((first[..., 0] - first[..., 2]) > 100).sum() > 20  # the orange cube is in the picture
+    first, last = (np.asarray(Image.open(overlap[k])).astype(int) for k in (0, -1))
+    assert ((last[..., 0] - last[..., 2]) > 40).sum() > 50  # the orange cube, seen through the overlay's panel
+    assert not np.array_equal(first, last)  # each frame its own positions
     assert _hidden(tmp_path) == [] and _no_processes_left(marker) == []
 
 
@@ -140,7 +141,7 @@ def test_a_killed_render_process_is_reported_and_leaves_nothing(tmp_path):
                             env=_env(marker), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         _wait_for_staged_frames(tmp_path, proc)
-        renderers = [p for p in _marked(marker) if p != proc.pid and b"multiprocessing" in
+        renderers = [p for p in _marked(marker) if p != proc.pid and b"spawn_main" in
                      open(f"/proc/{p}/cmdline", "rb").read()]
         assert len(renderers) == 1, renderers
         os.kill(renderers[0], signal.SIGKILL)
