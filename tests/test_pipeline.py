@@ -96,8 +96,15 @@ def test_overlap_gives_the_serial_states_and_frames(tmp_path):
     serial = sorted((runs["serial"] / "f").iterdir())
     overlap = sorted((runs["overlap"] / "f").iterdir())
     assert [p.name for p in serial] == [p.name for p in overlap] and len(serial) == 7
-    for p, q in zip(serial, overlap):  # the same kernels draw the same positions and overlay
-        assert np.array_equal(np.asarray(Image.open(p)), np.asarray(Image.open(q))), p.name
+    # The same kernels draw the same positions and overlay. Pixels may still differ by one level:
+    # vertex normals are f32 sums of face normals added by parallel threads (meshes.py), in an
+    # order the threads' timing decides (the default run: 1 pixel of 151 x 921,600 differed by 1).
+    differ = 0
+    for p, q in zip(serial, overlap):
+        a, b = (np.asarray(Image.open(f)).astype(int) for f in (p, q))
+        assert a.shape == b.shape == (64, 96, 3) and np.abs(a - b).max() <= 1, p.name
+        differ += int((a != b).any(axis=-1).sum())
+    assert differ <= 0.001 * 7 * 64 * 96
     first, last = (np.asarray(Image.open(overlap[k])).astype(int) for k in (0, -1))
     assert ((last[..., 0] - last[..., 2]) > 40).sum() > 50  # the orange cube, seen through the overlay's panel
     assert not np.array_equal(first, last)  # each frame its own positions

@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 from ..errors import OutputError, UserError
+from .recorder import FrameLabels, FrameVisits
 
 PIPELINES = ("auto", "serial", "overlap")
 SLOTS = 3  # frames the simulation may run ahead of the render process
@@ -215,13 +216,11 @@ class RenderProcess:
             self.shm.unlink()
 
 
-class OverlapRecorder:
+class OverlapRecorder(FrameVisits):
     """``on_frame(sim)`` for ``Simulation.run`` with a ``RenderProcess`` drawing beside it: the
     same interface and outputs as ``FrameRecorder`` (``finish()``, ``abort()``, ``frames``)."""
 
     def __init__(self, sim, options, render: RenderProcess, progress=None):
-        from .recorder import FrameLabels
-
         self.render, self.progress = render, progress
         try:
             self.labels = FrameLabels(sim, options)
@@ -232,15 +231,9 @@ class OverlapRecorder:
         self.frames = 0
         self.diverged_at: float | None = None
 
-    def __call__(self, sim):
-        if sim.diverged:
-            self.diverged_at = sim.diverged_at
-            return
-        lines, cam = self.labels.describe(sim)
+    def hand_over(self, sim, lines, cam):
         self.render.put(sim.state.x.to_numpy(), lines, cam, sim.time)
         self.frames += 1
-        if self.progress is not None:
-            self.progress(self.frames, sim)
 
     def finish(self) -> list[Path]:
         try:

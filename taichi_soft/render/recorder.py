@@ -50,7 +50,29 @@ class RenderOptions:
         return self.mesh_dir is not None or self.usd is not None or self.pc2_dir is not None
 
 
-class FrameRecorder(FrameJob):
+class FrameVisits:
+    """``on_frame(sim)`` of both pipelines: a diverged state is only noted (its NaN or runaway
+    values are not worth drawing); any other gets its labels (``FrameLabels``) and goes to
+    ``hand_over(sim, lines, camera)``, which counts ``frames``; then ``progress(frames, sim)``."""
+
+    labels = progress = None
+    frames = 0
+    diverged_at: float | None = None
+
+    def __call__(self, sim):
+        if sim.diverged:
+            self.diverged_at = sim.diverged_at
+            return
+        lines, cam = self.labels.describe(sim)
+        self.hand_over(sim, lines, cam)
+        if self.progress is not None:
+            self.progress(self.frames, sim)
+
+    def hand_over(self, sim, lines, cam):
+        raise NotImplementedError
+
+
+class FrameRecorder(FrameJob, FrameVisits):
     """Callable ``on_frame(sim)`` for ``Simulation.run``; then ``finish()`` or ``abort()``.
 
     Opening it opens the offscreen window, so a machine without Vulkan fails here, in one line
@@ -99,15 +121,8 @@ class FrameRecorder(FrameJob):
         self.diverged_at: float | None = None
 
     # -- main thread -------------------------------------------------------------------------
-    def __call__(self, sim):
-        if sim.diverged:
-            # The state after a diverged step holds NaN or runaway values: not worth drawing.
-            self.diverged_at = sim.diverged_at
-            return
-        lines, cam = self.labels.describe(sim)
+    def hand_over(self, sim, lines, cam):
         self.draw(lines, cam, sim.time)
-        if self.progress is not None:
-            self.progress(self.frames, sim)
 
     def draw(self, lines: list[str], cam, time: float):
         """Render the simulation's current positions seen by ``cam`` (a ``CameraSpec``) and hand
