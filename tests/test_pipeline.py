@@ -164,9 +164,9 @@ def test_a_killed_render_process_is_reported_and_leaves_nothing(tmp_path):
     assert _hidden(tmp_path) == []
 
 
-@pytest.mark.parametrize("signum,to_group", [(signal.SIGTERM, False), (signal.SIGINT, True)])
+@pytest.mark.parametrize("signum,to_group", [(signal.SIGTERM, False), (signal.SIGINT, True), (signal.SIGTERM, True)])
 def test_sigterm_or_ctrl_c_during_an_overlapped_run_leaves_old_outputs(tmp_path, signum, to_group):
-    """SIGTERM to the run, or Ctrl-C to the terminal's whole process group (the render process
+    """SIGTERM to the run, or Ctrl-C or SIGTERM to the whole process group (the render process
     too): the usual exit status and message, old outputs kept, nothing left behind."""
     video, frames, states, old = _old_outputs(tmp_path)
     marker = uuid.uuid4().hex

@@ -18,9 +18,11 @@ in only when the run finishes (``FrameJob``); an error there comes back down the
 raised in the run's process as ``OutputError`` (one line, exit 4); a render process that dies
 without a word (killed, crashed) is noticed within ``POLL_SECONDS`` and reported the same way,
 and the temporaries it left are removed. Ctrl-C and SIGTERM are handled by the run's process,
-which tells the render process to drop everything (the render process ignores them, so a
-Ctrl-C to the terminal's process group cannot kill it half-way); a run's process that dies
-closes the pipe and the render process drops everything and exits.
+which tells the render process to drop everything (the render process ignores SIGINT and
+SIGHUP, so a Ctrl-C to the terminal's process group cannot kill it half-way; a SIGTERM of its
+own, also what multiprocessing sends a daemon child when the run's Python exits, makes it drop
+its outputs and exit); a run's process that dies closes the pipe and the render process drops
+everything and exits.
 
 ``auto`` (the default) is ``overlap`` when frames are drawn: ``choose_pipeline`` says why.
 """
@@ -277,8 +279,9 @@ def _attach(name: str):
 
 def _render_main(conn, scene, options, runtime_args: dict):
     """Entry of the render process: open the renderer and outputs, then draw what arrives."""
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+    for signum in (signal.SIGINT, signal.SIGHUP):
         signal.signal(signum, signal.SIG_IGN)  # the run's process decides, and says "abort"
+    signal.signal(signal.SIGTERM, _terminated)  # a SIGTERM of its own (or at exit): drop everything
     recorder = shm = None
     try:
         import numpy as np
@@ -335,6 +338,10 @@ def _render_main(conn, scene, options, runtime_args: dict):
 
 class _Abort(Exception):
     pass
+
+
+def _terminated(signum, frame):
+    raise _Abort
 
 
 def _report(conn, e: BaseException):
