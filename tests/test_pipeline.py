@@ -19,7 +19,7 @@ from conftest import ROOT
 SMALL = ["--set", "body.0.n=4", "--resolution", "96x64", "--fps", "20"]
 
 
-def _command(tmp_path, *args):
+def _command(*args):
     return [sys.executable, str(ROOT / "main.py"), "run", *SMALL, *map(str, args)]
 
 
@@ -81,7 +81,7 @@ def test_overlap_gives_the_serial_states_and_frames(tmp_path):
     for mode in ("serial", "overlap"):
         out = tmp_path / mode
         out.mkdir()
-        r = subprocess.run(_command(tmp_path, "--duration", "0.3", "--pipeline", mode, "--states", out / "s.npz",
+        r = subprocess.run(_command("--duration", "0.3", "--pipeline", mode, "--states", out / "s.npz",
                                     "--frames", out / "f", "--video", out / "v.mp4"),
                            env=_env(marker), capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr
@@ -119,7 +119,7 @@ def test_an_encoder_failure_in_the_render_process_is_one_line_and_keeps_old_outp
     fake.write_text("#!/bin/sh\nhead -c 60000 >/dev/null\necho 'fake-encoder: broken pipe to nowhere' >&2\nexit 1\n")
     fake.chmod(0o755)
     marker = uuid.uuid4().hex
-    r = subprocess.run(_command(tmp_path, "--duration", "2", "--pipeline", "overlap", "--video", video,
+    r = subprocess.run(_command("--duration", "2", "--pipeline", "overlap", "--video", video,
                                 "--frames", frames, "--states", states),
                        env=_env(marker, IMAGEIO_FFMPEG_EXE=str(fake)), capture_output=True, text=True, timeout=300)
     assert r.returncode == 4, r.stderr
@@ -143,7 +143,7 @@ def _wait_for_staged_frames(tmp_path, proc, count=3, wait=120):
 def test_a_killed_render_process_is_reported_and_leaves_nothing(tmp_path):
     video, frames, states, old = _old_outputs(tmp_path)
     marker = uuid.uuid4().hex
-    proc = subprocess.Popen(_command(tmp_path, "--duration", "60", "--pipeline", "overlap", "--video", video,
+    proc = subprocess.Popen(_command("--duration", "60", "--pipeline", "overlap", "--video", video,
                                      "--frames", frames, "--states", states),
                             env=_env(marker), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -170,7 +170,7 @@ def test_sigterm_or_ctrl_c_during_an_overlapped_run_leaves_old_outputs(tmp_path,
     too): the usual exit status and message, old outputs kept, nothing left behind."""
     video, frames, states, old = _old_outputs(tmp_path)
     marker = uuid.uuid4().hex
-    proc = subprocess.Popen(_command(tmp_path, "--duration", "60", "--pipeline", "overlap", "--video", video,
+    proc = subprocess.Popen(_command("--duration", "60", "--pipeline", "overlap", "--video", video,
                                      "--frames", frames, "--states", states),
                             env=_env(marker), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
@@ -194,7 +194,7 @@ def test_sigterm_or_ctrl_c_during_an_overlapped_run_leaves_old_outputs(tmp_path,
 @pytest.mark.parametrize("args,word", [(["--pipeline", "sideways"], "--pipeline"),
                                        (["--pipeline", "overlap", "--export-mesh", "m"], "--video or --frames")])
 def test_bad_pipeline_flags_exit_2_before_any_work(tmp_path, args, word):
-    r = subprocess.run(_command(tmp_path, "--duration", "30", *args), cwd=tmp_path, capture_output=True, text=True,
+    r = subprocess.run(_command("--duration", "30", *args), cwd=tmp_path, capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 2 and word in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert list(tmp_path.iterdir()) == []
