@@ -194,7 +194,10 @@ class RenderProcess:
                 self.proc.kill()
                 self.proc.join(timeout=STOP_SECONDS)
         finally:
-            self._close()
+            try:
+                self._close()
+            except OSError:  # the shared memory already gone: nothing left to free
+                pass
             from ..outfiles import remove_stale_temps
 
             for path, folder in _output_paths(self.options):
