@@ -137,11 +137,12 @@ def add_fast_math_arg(p: argparse.ArgumentParser, default: bool):
                         f"physics to rounding; NaN/inf still stop the run (default: {'on' if default else 'off'})")
 
 
-def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
-    """Flags for offscreen rendering (docs/rendering.md)."""
+def add_render_args(p: argparse.ArgumentParser, mesh_export=True, pipeline=True):
+    """Flags for offscreen rendering (docs/rendering.md); ``pipeline``: offer --pipeline (run only)."""
     from .render.export import MESH_FORMATS
 
     from .render.choose import RENDERERS
+    from .render.pipeline import PIPELINES
 
     g = p.add_argument_group("rendering (offscreen: GGUI on a Vulkan GPU, else Taichi kernels on the CPU)")
     g.add_argument("--video", metavar="PATH", help="write a video: .mp4 (H.264, yuv420p) or .gif")
@@ -155,6 +156,11 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True):
     g.add_argument("--follow", action=argparse.BooleanOptionalAction, default=None,
                    help="camera tracks the bodies' centre of mass (default: on tilted_plane and sphere, where they travel far)")
     g.add_argument("--no-overlay", dest="overlay", action="store_false", help="leave the text overlay out of frames")
+    if pipeline:
+        g.add_argument("--pipeline", choices=PIPELINES, default="auto",
+                       help="serial: simulate, then render each frame in this process; overlap: a render "
+                            "process draws frame k while this one simulates frame k+1 (same states, bit for bit); "
+                            "auto (default): overlap with --video/--frames, else serial (docs/rendering.md)")
     g.add_argument("--renderer", choices=RENDERERS, default="auto",
                    help="ggui: GGUI through Vulkan; taichi: Taichi kernels, no Vulkan needed, surfaces only; "
                         "auto (default): ggui on a Vulkan GPU or for --particles/--springs, else taichi")
@@ -177,6 +183,7 @@ def render_options_from_args(args, scene):
     """Validated ``RenderOptions``: output paths checked (and parents created) before any simulation."""
     from .render.choose import choose_renderer
     from .render.outputs import VIDEO_SUFFIXES, check_video_size
+    from .render.pipeline import choose_pipeline
     from .render.recorder import RenderOptions
 
     render = scene.data["render"]
@@ -191,13 +198,15 @@ def render_options_from_args(args, scene):
 
         usd = check_output_path(usd, "--export-usd", USD_SUFFIXES)
         require_usd()
-    return RenderOptions(
+    options = RenderOptions(
         video=video, frames=check_output_dir(args.frames, "--frames"),
         mesh_dir=check_output_dir(getattr(args, "export_mesh", None), "--export-mesh"),
         usd=usd, pc2_dir=check_output_dir(getattr(args, "export_pc2", None), "--export-pc2"),
         mesh_format=getattr(args, "mesh_format", "ply"), fps=render["fps"], resolution=(width, height),
         surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay,
         renderer=args.renderer)
+    options.pipeline = choose_pipeline(getattr(args, "pipeline", "serial"), options)
+    return options
 
 
 def _resolution_arg(text):
@@ -235,7 +244,12 @@ def load_scene_from_args(args):
 def start_taichi(args):
     from . import runtime
 
-    return runtime.init(args.arch, args.precision, fast_math=args.fast_math)
+    return runtime.init(**_runtime_args(args))
+
+
+def _runtime_args(args) -> dict:
+    """``runtime.init``'s arguments from the command line (the render process starts its own)."""
+    return {"arch": args.arch, "precision": args.precision, "fast_math": args.fast_math}
 
 
 def cmd_list(args) -> int:
@@ -274,8 +288,19 @@ def cmd_run(args) -> int:
     summary_path = check_output_path(args.summary, "--summary", [".json"])
     states_path = check_output_path(args.states, "--states", [".npz"])
     render_options = render_options_from_args(args, scene)
-    start_taichi(args)
-    sim = Simulation(scene)
+    render_process = None
+    if render_options.any and render_options.pipeline == "overlap":
+        from .render.pipeline import RenderProcess
+
+        # Started first: its start-up (Python, Taichi, renderer, outputs) overlaps ours.
+        render_process = RenderProcess(scene, render_options, _runtime_args(args))
+    try:
+        start_taichi(args)
+        sim = Simulation(scene)
+    except BaseException:
+        if render_process is not None:
+            render_process.abort()
+        raise
     for line in body_lines(sim.model):
         print(line)
     duration = scene.sim["duration"]
@@ -289,8 +314,13 @@ def cmd_run(args) -> int:
         # Opens the offscreen window first: no Vulkan fails here, before any simulation.
         n_frames = frame_count(duration, sim.dt, fps)
         bar = CountBar(n_frames, label, unit="frame")
-        recorder = FrameRecorder(sim, render_options,
-                                 progress=lambda k, s: bar.update(k, f"frame {k}/{n_frames} t={s.time:6.3f}s"))
+        progress = lambda k, s: bar.update(k, f"frame {k}/{n_frames} t={s.time:6.3f}s")  # noqa: E731
+        if render_process is not None:
+            from .render.pipeline import OverlapRecorder
+
+            recorder = OverlapRecorder(sim, render_options, render_process, progress=progress)
+        else:
+            recorder = FrameRecorder(sim, render_options, progress=progress)
     else:
         bar = CountBar(step_count(duration, sim.dt), label, unit="step")
         step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
@@ -625,7 +655,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_args(p_cmp, integrator=False)
     p_cmp.add_argument("--integrators", default=DEFAULT_COMPARE,
                        help=f"comma-separated integrator names, one tile each (default: {DEFAULT_COMPARE})")
-    add_render_args(p_cmp, mesh_export=False)
+    add_render_args(p_cmp, mesh_export=False, pipeline=False)
     p_cmp.set_defaults(func=cmd_compare)
     p_demo = sub.add_parser("demo", help="open the interactive classroom window (needs a display and Vulkan)")
     add_scene_args(p_demo)

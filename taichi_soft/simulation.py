@@ -73,6 +73,19 @@ class RunResult:
     frames: list = field(default_factory=list)
 
 
+def build_world(data: dict):
+    """(model, terrain) of a scene's data: its bodies and the ground they fall on, at rest in
+    their start pose (what ``Simulation`` steps; the render process of ``--pipeline overlap``
+    builds the same to draw positions it is sent)."""
+    builder = ModelBuilder(gravity=data["sim"]["gravity"])
+    for body in data["body"]:
+        builder.add_cube(body_spec(body))
+    model = builder.finalize()
+    t = data["terrain"]
+    geometry = {k: v for k, v in t.items() if k != "kind"}
+    return model, make_terrain(t["kind"], model.n_particles, geometry, **data["contact"])
+
+
 class Simulation:
     """Everything one scene needs, built once: ``model``, ``terrain``, ``integrator``, ``state``.
 
@@ -84,13 +97,7 @@ class Simulation:
                  options: dict | None = None, check: bool = True):
         data = scene.data
         self.scene = scene
-        builder = ModelBuilder(gravity=data["sim"]["gravity"])
-        for body in data["body"]:
-            builder.add_cube(body_spec(body))
-        self.model = builder.finalize()
-        t = data["terrain"]
-        geometry = {k: v for k, v in t.items() if k != "kind"}
-        self.terrain = make_terrain(t["kind"], self.model.n_particles, geometry, **data["contact"])
+        self.model, self.terrain = build_world(data)
         self.integrator_name = integrator or data["sim"]["integrator"]
         if options is None:
             options = data.get("solver", {})

@@ -250,6 +250,9 @@ class BackgroundWriter:
             item = self._queue.get()
             if item is self._STOP:
                 return
+            if isinstance(item, threading.Event):  # flush(): everything before it is written
+                item.set()
+                continue
             if self._error is None:
                 try:
                     self._handle(item)
@@ -264,6 +267,15 @@ class BackgroundWriter:
                 return
             except queue.Full:
                 continue
+
+    def flush(self):
+        """Wait until everything submitted so far is written (the worker keeps running); re-raise
+        a worker failure."""
+        done = threading.Event()
+        self.submit(done)
+        while not done.wait(0.2):
+            self._raise_if_failed()
+        self._raise_if_failed()
 
     def _raise_if_failed(self):
         if self._error is not None:

@@ -34,6 +34,7 @@ class RenderOptions:
     follow: bool | None = None  # None: the terrain's default
     overlay: bool = True
     renderer: str = "auto"  # "auto", "ggui" or "taichi" (render.choose)
+    pipeline: str = "serial"  # "serial" or "overlap" (render.pipeline): where the frames are drawn
 
     @property
     def needs_renderer(self) -> bool:
@@ -49,7 +50,29 @@ class RenderOptions:
         return self.mesh_dir is not None or self.usd is not None or self.pc2_dir is not None
 
 
-class FrameRecorder(FrameJob):
+class FrameVisits:
+    """``on_frame(sim)`` of both pipelines: a diverged state is only noted (its NaN or runaway
+    values are not worth drawing); any other gets its labels (``FrameLabels``) and goes to
+    ``hand_over(sim, lines, camera)``, which counts ``frames``; then ``progress(frames, sim)``."""
+
+    labels = progress = None
+    frames = 0
+    diverged_at: float | None = None
+
+    def __call__(self, sim):
+        if sim.diverged:
+            self.diverged_at = sim.diverged_at
+            return
+        lines, cam = self.labels.describe(sim)
+        self.hand_over(sim, lines, cam)
+        if self.progress is not None:
+            self.progress(self.frames, sim)
+
+    def hand_over(self, sim, lines, cam):
+        raise NotImplementedError
+
+
+class FrameRecorder(FrameJob, FrameVisits):
     """Callable ``on_frame(sim)`` for ``Simulation.run``; then ``finish()`` or ``abort()``.
 
     Opening it opens the offscreen window, so a machine without Vulkan fails here, in one line
@@ -57,7 +80,6 @@ class FrameRecorder(FrameJob):
     """
 
     def __init__(self, sim, options: RenderOptions, progress=None):
-        from .camera import scene_camera
         from .embedded import body_surface
 
         self.sim, self.options, self.progress = sim, options, progress
@@ -73,9 +95,7 @@ class FrameRecorder(FrameJob):
             if self.renderer is not None:
                 self.view = SimulationView(sim, options.surface, options.particles, options.springs)
             self.surface = self.view.surface if self.view else body_surface(sim.model)
-            self.camera = scene_camera(sim.scene.data, width / height, options.follow,
-                                       overlay.INFO_MARGIN if options.overlay else 0.0)
-            self.info = overlay.run_info(sim)
+            self.labels = FrameLabels(sim, options)
             self.image_sinks = open_image_sinks(options.video, options.frames, options.fps, (width, height))
             if options.mesh_dir:
                 from .export import MeshFrames
@@ -97,32 +117,27 @@ class FrameRecorder(FrameJob):
             self.abort()
             raise
         self.frames = 0
-        self.energy0: float | None = None  # total energy [J] at the first frame, the overlay's zero
         self.last = None  # (image, overlay lines) of the last good frame
         self.diverged_at: float | None = None
 
     # -- main thread -------------------------------------------------------------------------
-    def __call__(self, sim):
-        if sim.diverged:
-            # The state after a diverged step holds NaN or runaway values: not worth drawing.
-            self.diverged_at = sim.diverged_at
-            return
-        m = sim.measure()
-        if self.energy0 is None:  # the first frame is the start (t = 0)
-            self.energy0 = m["total_energy"]
-        lines = self.info.lines(sim.time, m["total_energy"] - self.energy0)
+    def hand_over(self, sim, lines, cam):
+        self.draw(lines, cam, sim.time)
+
+    def draw(self, lines: list[str], cam, time: float):
+        """Render the simulation's current positions seen by ``cam`` (a ``CameraSpec``) and hand
+        the frame (and the surface mesh, if written) to the writer thread with the overlay
+        ``lines``; ``time`` [s] is the frame's simulated time."""
         image = mesh = None
         if self.renderer is not None:
-            image = self.renderer.render(self.view, self.camera.following(m["center_of_mass"]))
+            image = self.renderer.render(self.view, cam)
         else:
-            self.surface.update(sim.state.x)
+            self.surface.update(self.sim.state.x)
         if self.options.needs_meshes:
             mesh = self.surface.numpy()
-        self.writer.submit((self.frames, image, lines, None, mesh, sim.time))
+        self.writer.submit((self.frames, image, lines, None, mesh, time))
         self.last = (image, lines)
         self.frames += 1
-        if self.progress is not None:
-            self.progress(self.frames, sim)
 
     def output_sinks(self) -> list:
         return self.image_sinks + self.mesh_sinks
@@ -155,6 +170,28 @@ class FrameRecorder(FrameJob):
         if mesh is not None:
             for sink in self.mesh_sinks:
                 sink.add(mesh, index, time)
+
+
+class FrameLabels:
+    """What a frame says and where its camera looks, from the simulation's state (the overlay's
+    lines and the ``CameraSpec``): computed where the simulation runs, so the render process of
+    ``--pipeline overlap`` gets them ready-made with the positions."""
+
+    def __init__(self, sim, options: RenderOptions):
+        from .camera import scene_camera
+
+        width, height = options.resolution
+        self.camera = scene_camera(sim.scene.data, width / height, options.follow,
+                                   overlay.INFO_MARGIN if options.overlay else 0.0)
+        self.info = overlay.run_info(sim)
+        self.energy0: float | None = None  # total energy [J] at the first frame, the overlay's zero
+
+    def describe(self, sim) -> tuple[list[str], object]:
+        """(overlay lines, camera) of ``sim``'s current state; the first call sets the energy's zero."""
+        m = sim.measure()
+        if self.energy0 is None:  # the first frame is the start (t = 0)
+            self.energy0 = m["total_energy"]
+        return self.info.lines(sim.time, m["total_energy"] - self.energy0), self.camera.following(m["center_of_mass"])
 
 
 def frame_count(duration: float, dt: float, fps: float) -> int:
