@@ -1,9 +1,9 @@
 """What an implicit run's own counters say about its answer: warnings, and whether it is meaningless.
 
 The solver knows when a step went wrong: its line search found no decrease before the step
-converged (the step ends at the last accepted iterate, short of the solution), or the energy
+converged (the step ends at the last accepted iterate, short of the solution), the energy
 clamp had to take energy out of the velocities (the step ended with more energy than it began
-with). A few such steps in a long run are worth a line; when they are a large share of the steps
+with), or candidate body-contact pairs did not fit the pair list (their contacts were missed). A few such steps in a long run are worth a line; when they are a large share of the steps
 the result is driven by the fallback rather than by the physics, and the run must not pass as a
 success (``run`` exits with ``EXIT_UNRELIABLE``).
 """
@@ -29,5 +29,12 @@ def assess(stats: dict) -> tuple[list[str], bool]:
     if clamped >= CLAMP_WARN_SHARE * steps:
         lines.append(f"the energy clamp acted on {clamped} of {steps} steps (they ended with more energy than they "
                      "began with and their velocities were scaled down)")
+    dropped = int(stats.get("body_pair_overflows", 0))
+    if dropped:
+        # The candidate list holds pairs.PAIRS_PER_PARTICLE per particle; at large steps the
+        # candidate distance (twice the largest predicted move) takes in whole neighbouring bodies.
+        lines.append(f"{dropped} candidate body-contact pairs did not fit the pair list and were left out of "
+                     f"the steps (deepest overlap between bodies {stats.get('body_deepest_overlap_m', 0.0):.3g} m): "
+                     "bodies may have passed into each other; use a smaller --dt")
     meaningless = max(failed, clamped) >= MEANINGLESS_SHARE * steps
     return lines, meaningless
