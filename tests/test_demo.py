@@ -610,10 +610,11 @@ def test_duration_stops_the_demo_there_and_r_restarts(fresh):
 
 def test_demo_passes_its_duration_to_the_window(monkeypatch):
     from taichi_soft import cli
+    from taichi_soft.commands import common
     from taichi_soft.demo import app
 
     seen = {}
-    monkeypatch.setattr(cli, "start_taichi", lambda args: None)
+    monkeypatch.setattr(common, "start_taichi", lambda args: None)
     monkeypatch.setattr(app, "run_demo", lambda *a, **kw: seen.update(kw))
     assert cli.main(["demo", "--set", "body.0.n=3", "--duration", "0.25"]) == 0
     assert seen["duration"] == 0.25

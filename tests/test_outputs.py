@@ -75,8 +75,9 @@ def test_sigterm_during_a_render_leaves_the_old_outputs_and_no_junk(tmp_path):
     old_video, old_frames = _md5(video), sorted(p.name for p in frames.iterdir())
     proc = subprocess.Popen(args + ["--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
-    def staged():  # frames of this run already in its hidden staging folder (".f.<pid>.<hex>")
-        return sum(1 for d in tmp_path.iterdir() if d.name.startswith(f".f.{proc.pid}.") for _ in d.iterdir())
+    def staged():  # frames of this run already in its hidden staging folder (".f.<pid>.<hex>", the pid
+        # the run's or, with --pipeline overlap, its render process's)
+        return sum(1 for d in tmp_path.iterdir() if d.name.startswith(".f.") and d.is_dir() for _ in d.iterdir())
 
     # Signal once the render is under way (frames staged), not after a guessed delay; the process
     # ending first (an error) or no frame at all also end the wait.

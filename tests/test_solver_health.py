@@ -27,11 +27,12 @@ def test_failed_line_searches_are_said_and_the_run_exits_non_zero(monkeypatch, c
     import json
 
     from taichi_soft import cli
+    from taichi_soft.commands import common
     from taichi_soft.integrators import REGISTRY
 
     monkeypatch.setitem(REGISTRY, "uphill", _Uphill)
     monkeypatch.setattr(_Uphill, "name", "uphill")
-    monkeypatch.setattr(cli, "start_taichi", lambda args: None)  # conftest's runtime is running
+    monkeypatch.setattr(common, "start_taichi", lambda args: None)  # conftest's runtime is running
     summary = tmp_path / "s.json"
     code = cli.main(["run", "--set", "body.0.n=3", "--set", "body.0.initial_stretch=[1.2, 0.9, 1.0]",
                      "--integrator", "uphill", "--dt", "0.01", "--duration", "0.05", "--summary", str(summary)])

@@ -1,0 +1,89 @@
+"""``bench``: the studies of taichi_soft.bench, written as CSV, PNG and Markdown."""
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+from ..errors import UserError
+from .common import (DEFAULT_OUT, EXIT_OK, EXIT_TASKS_FAILED, check_output_dir)
+
+
+def cmd_bench(args) -> int:
+    """``bench accuracy|stability|speed|memory|report``: measure and write CSV, PNG and Markdown (docs/benchmarks/REPORT.md)."""
+    import time
+
+    from .. import runtime
+    from ..progress import CountBar
+    from ..tasks import RETRIES, make_executor
+
+    if args.study == "speed-worker":  # internal: one (arch, precision) per process, JSON on stdout
+        from ..bench.report import run_speed_worker
+
+        runtime.init(args.arch, args.precision, fast_math=args.fast_math,
+                     kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
+        print(json.dumps(run_speed_worker(args.quick)))
+        return EXIT_OK
+    if args.study in ("speed", "memory", "mesh") and (args.workers is not None or args.scheduler is not None):
+        raise UserError(f"bench {args.study} runs one configuration at a time (its measurements need a quiet "
+                        "machine); --workers/--scheduler apply to the accuracy and stability sweeps")
+    default = f"{DEFAULT_OUT}/benchmarks-quick" if args.quick else "docs/benchmarks"
+    out_dir = check_output_dir(args.out or default, "--out")
+    if args.study == "mesh":  # mesh-body goals: build time and frame cost (bench/meshbody.py)
+        from ..bench import meshbody as mesh_bench
+
+        runtime.init("cpu", "f64")
+        result = mesh_bench.run(repeats=2 if args.quick else 5, frames=5 if args.quick else 20)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        b = result["build"]
+        print(f"build {mesh_bench.N}^3 body from {result['triangles']} triangles: {b['median_s']:.2f} s wall, "
+              f"{b['cpu_median_s']:.2f} s CPU (goal 2 s)")
+        for kind, f in result["frame"].items():
+            print(f"frame mesh/cube at 1280x720, {kind}: " + (f["error"] if "error" in f else
+                  f"{f['mesh_ms']:.1f} / {f['cube_ms']:.1f} ms = {f['ratio']:.2f}x (goal 1.5x)"))
+        print(f"wrote {mesh_bench.write_report(result, out_dir)}")
+        return EXIT_OK
+    # Before any work: an unreachable --scheduler is refused here, in a few seconds.
+    executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    from ..bench import report
+
+    start = time.perf_counter()
+    acc = stab = speed = mem = None
+    files = []
+    try:
+        if args.study in ("accuracy", "report"):
+            acc = report.run_accuracy(args.quick, executor)
+            files += report.write_accuracy(acc, out_dir)
+        if args.study in ("stability", "report") and not (acc and acc["interrupted"]):
+            stab = report.run_stability(args.quick, executor)
+            files += report.write_stability(stab, out_dir)
+    finally:
+        if executor is not None:
+            executor.close()
+    if args.study in ("speed", "report") and not any(r and r["interrupted"] for r in (acc, stab)):
+        runtime.init("cpu", "f64")  # speed_configs asks Taichi which backends this machine has
+        bar = CountBar(1, "bench speed", unit="config")
+        speed = report.run_speed(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
+        bar.close()
+        files += report.write_speed(speed, out_dir)
+    if args.study in ("memory", "report") and not any(r and r["interrupted"] for r in (acc, stab, speed)):
+        bar = CountBar(1, "bench memory", unit="size")
+        mem = report.run_memory(args.quick, lambda done, total, what: bar.update(done, str(what)[:60], total=total))
+        bar.close()
+        files += report.write_memory(mem, out_dir)
+    command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
+    name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
+    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem, name)
+    files.append(md.name)
+    if acc:
+        for case, data in acc["cases"].items():
+            orders = ", ".join(f"{k} {v:.2f}" for k, v in data["orders"].items() if v is not None)
+            print(f"fitted orders ({case}): {orders}")
+    print(f"wrote {len(files)} files to {out_dir}: {md}")
+    failed = {k: v for r in (acc, stab) if r for k, v in r["failed"].items()}
+    for key, err in failed.items():
+        print(f"bench {args.study}: task {key} FAILED after {RETRIES + 1} attempts: {err}", file=sys.stderr)
+    if any(r and r["interrupted"] for r in (acc, stab, speed, mem)):
+        return 130
+    return EXIT_TASKS_FAILED if failed else EXIT_OK

@@ -1,0 +1,43 @@
+"""``compare``: one scene with several integrators at the same dt, one mosaic video."""
+from __future__ import annotations
+
+
+from ..memory import check_fits
+from . import common
+from .common import (DEFAULT_OUT, EXIT_OK, print_outputs, load_scene_from_args, parse_integrator_list,
+                     render_options_from_args)
+
+
+def cmd_compare(args) -> int:
+    from ..progress import CountBar
+
+    integrators = parse_integrator_list(args.integrators)
+    scene = load_scene_from_args(args)
+    check_fits(scene.data, integrators, args.precision, args.arch, fast_math=args.fast_math)
+    if args.video is None and args.frames is None:
+        args.video = f"{DEFAULT_OUT}/compare-{scene.name}.mp4"
+    render_options = render_options_from_args(args, scene)
+    common.start_taichi(args)
+    from ..render.compare import Comparison
+    from ..render.recorder import frame_count
+
+    comparison = Comparison(scene, integrators, render_options)
+    n_frames = frame_count(scene.sim["duration"], comparison.dt, render_options.fps)
+    bar = CountBar(n_frames, f"{scene.label}: {', '.join(integrators)}", unit="frame")
+    try:
+        results = comparison.run(scene.sim["duration"],
+                                 progress=lambda k, t: bar.update(k, f"frame {k}/{n_frames} t={t:6.3f}s"))
+    except BaseException:
+        comparison.abort()
+        raise
+    finally:
+        bar.close()
+    comparison.finish()
+    for r in results:
+        if r.diverged_at is not None:
+            state = f"diverged at t = {r.diverged_at:.4f} s (step {r.diverged_step})"
+        else:
+            state = f"ran to t = {r.final_time:.3f} s, energy change since t = 0 {r.final_energy:+.6g} J"
+        print(f"{r.integrator:22s} dt = {comparison.dt:g} s: {state}")
+    print_outputs(zip(("video", "frames"), (render_options.video, render_options.frames)))
+    return EXIT_OK

@@ -1,0 +1,21 @@
+"""``list``: scenes, integrators and backends."""
+from __future__ import annotations
+
+
+from .common import (EXIT_OK)
+
+
+def cmd_list(args) -> int:
+    from .. import runtime
+    from ..integrators import REGISTRY
+    from ..scene import SCENES_DIR, scene_names
+
+    print(f"scenes (in {SCENES_DIR}):")
+    for name in scene_names():
+        print(f"  {name}")
+    print("integrators:")
+    for name, cls in REGISTRY.items():
+        print(f"  {name:22s} order {cls.order}, {cls.description}")
+    print("backends (--arch): " + ", ".join(runtime.ARCHS) + f"; available here: {', '.join(runtime.available_archs())}")
+    print("precisions (--precision): " + ", ".join(runtime.PRECISIONS))
+    return EXIT_OK

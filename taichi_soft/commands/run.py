@@ -1,0 +1,135 @@
+"""``run``: simulate a scene; write a summary, states, a video, frames, meshes and caches."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from ..errors import OutputError
+from ..memory import check_fits
+from ..outfiles import finite_or_none
+from . import common
+from .common import (EXIT_DIVERGED, EXIT_OK, EXIT_OUTPUT, EXIT_UNRELIABLE, print_outputs, render_paths,
+                     runtime_args, write_output, check_output_path, load_scene_from_args,
+                     render_options_from_args)
+
+
+def cmd_run(args) -> int:
+    import numpy as np
+
+    from ..progress import CountBar
+    from ..simulation import Simulation, body_lines, states_arrays, step_count
+
+    scene = load_scene_from_args(args)
+    check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None,
+               fast_math=args.fast_math)
+    if args.dry_run:
+        from ..dry_run import describe
+
+        outputs = {"--summary": args.summary, "--states": args.states, "--video": args.video, "--frames": args.frames,
+                   "--export-mesh": args.export_mesh, "--export-usd": args.export_usd, "--export-pc2": args.export_pc2}
+        for line in describe(scene, args.precision, args.arch, outputs, scene.data["render"]["fps"], args.fast_math):
+            print(line)
+        return EXIT_OK
+    summary_path = check_output_path(args.summary, "--summary", [".json"])
+    states_path = check_output_path(args.states, "--states", [".npz"])
+    render_options = render_options_from_args(args, scene)
+    render_process = None
+    if render_options.any and render_options.pipeline == "overlap":
+        from ..render.pipeline import RenderProcess
+
+        # Started first: its start-up (Python, Taichi, renderer, outputs) overlaps ours.
+        render_process = RenderProcess(scene, render_options, runtime_args(args))
+    try:
+        common.start_taichi(args)
+        sim = Simulation(scene)
+    except BaseException:
+        if render_process is not None:
+            render_process.abort()
+        raise
+    for line in body_lines(sim.model):
+        print(line)
+    duration = scene.sim["duration"]
+    fps = scene.data["render"]["fps"]
+    label = f"{scene.label}/{sim.integrator_name}"
+    _note_whole_steps(duration, sim.dt)
+    recorder, step_progress = None, None
+    if render_options.any:
+        from ..render.recorder import FrameRecorder, frame_count
+
+        # Opens the offscreen window first: no Vulkan fails here, before any simulation.
+        n_frames = frame_count(duration, sim.dt, fps)
+        bar = CountBar(n_frames, label, unit="frame")
+        progress = lambda k, s: bar.update(k, f"frame {k}/{n_frames} t={s.time:6.3f}s")  # noqa: E731
+        if render_process is not None:
+            from ..render.pipeline import OverlapRecorder
+
+            recorder = OverlapRecorder(sim, render_options, render_process, progress=progress)
+        else:
+            recorder = FrameRecorder(sim, render_options, progress=progress)
+    else:
+        bar = CountBar(step_count(duration, sim.dt), label, unit="step")
+        step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
+    try:
+        result = sim.run(duration, fps, on_frame=recorder, record=states_path is not None, progress=step_progress)
+    except OutputError as e:  # the video or frames failed part-way (full disk, encoder error): stop there
+        recorder.abort()
+        others = [f"--{name} {path}" for name, path in (("summary", summary_path), ("states", states_path)) if path]
+        raise OutputError(f"{e}; the run stopped at t = {sim.time:.3f} s" +
+                          (f", so {' and '.join(others)} {'was' if len(others) == 1 else 'were'} not written either"
+                           if others else "")) from None
+    except BaseException:
+        if recorder is not None:
+            recorder.abort()
+        raise
+    finally:
+        bar.close()
+    failures = []
+    written = []
+    if recorder is not None:
+        try:
+            recorder.finish()
+            written += list(zip(("video", "frames", "meshes", "usd", "pc2"), render_paths(render_options)))
+        except OutputError as e:
+            failures.append(str(e))
+    summary = sim.summary(result)
+    if summary_path:
+        text = json.dumps(finite_or_none(summary), indent=2)
+        failures += write_output("summary", summary_path, lambda tmp: Path(tmp).write_text(text + "\n"), written)
+    if states_path:
+        arrays = states_arrays(result.frames, sim.model.real)
+
+        def save(tmp):
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+        failures += write_output("states", states_path, save, written)
+    if not result.diverged:
+        f = summary["final"]
+        com = ", ".join(f"{c:.3f}" for c in f["center_of_mass"])
+        print(f"{scene.label}/{sim.integrator_name}: {result.steps} steps of {sim.dt:g} s = {result.sim_time:.3f} s "
+              f"simulated in {result.wall_seconds:.2f} s wall ({summary['steps_per_second']:.0f} steps/s); "
+              f"final centre of mass ({com}), kinetic energy {f['kinetic_energy']:.3g} J")
+    print_outputs(written)
+    for line in failures:
+        print(f"error: {line}", file=sys.stderr)
+    for line in summary["solver_warnings"]:
+        print(f"warning: {label}: {line}", file=sys.stderr)
+    if result.diverged:
+        print(f"diverged at t = {result.diverged_at:.4f} s (step {result.diverged_step}) with {sim.integrator_name} "
+              f"at dt = {sim.dt:g} s; {sim.divergence_hint()[1]}", file=sys.stderr)
+        return EXIT_DIVERGED
+    if summary["meaningless"]:
+        print(f"error: {label}: the solver's fallbacks decided most steps, so this result is meaningless; "
+              "try a smaller --dt or --precision f64", file=sys.stderr)
+        return EXIT_UNRELIABLE
+    return EXIT_OUTPUT if failures else EXIT_OK
+
+
+def _note_whole_steps(duration: float, dt: float):
+    """Say what is simulated when the duration is not a whole number of steps."""
+    from ..simulation import step_count
+
+    steps = step_count(duration, dt)
+    if abs(steps * dt - duration) > 1e-9 * duration:
+        print(f"note: simulating {steps} steps of {dt:g} s = {steps * dt:g} s (sim.duration {duration:g} s "
+              "is not a whole number of steps)", file=sys.stderr)
