@@ -24,8 +24,9 @@ which its speed stays below ``REST_SPEED``. Each run samples the centre of mass 
 max(dt, ``SAMPLE``) s. For ``ensemble`` the error is the largest of |mean apex - reference's| and
 |mean rest height - reference's| (apex left out where the reference has none within the run).
 
-Costs: ``wall_per_sim_s`` wall seconds per simulated second (after a warm-up, ``ti.sync()``, one
-run in long launches without readbacks; errors come from a second, sampled run of the same steps), and ``spring_passes``, a count
+Costs: ``wall_per_sim_s`` wall seconds per simulated second (after a warm-up, ``ti.sync()``, the
+median of ``REPEATS`` runs in long launches without readbacks, not interleaved across methods;
+errors come from a further, sampled run of the same steps), and ``spring_passes``, a count
 independent of the machine: passes over all springs (force or gradient evaluations, Hessian
 products, line-search trials) per run, from the solvers' own counters.
 
@@ -60,6 +61,7 @@ QUICK_STIFFNESS = (1.0, 1000.0)
 QUICK_TOLERANCES = ("default",)
 ENSEMBLE = (((1, 0, 1), 30.0), ((1, 0, 0), 20.0), ((0, 0, 1), 40.0), ((1, 1, 0), 25.0), ((0, 1, 1), 35.0))
 PLANE_Y = -1.0
+REPEATS = 3  # timed runs per configuration (median); --quick: 1
 REFERENCE_FRACTION = 64  # the reference RK4 runs at 1/64 of its linear limit, checked against 1/32
 
 
@@ -122,24 +124,30 @@ def divide(dt: float, interval: float = SAMPLE) -> float:
     return interval / math.ceil(interval / dt - 1e-9)
 
 
-def trajectory(sim, dt: float, t_end: float) -> dict:
-    """Run from the scene's start twice: once timed in long launches without readbacks (wall time
-    [s], ``ti.sync()`` around it; the solver stats of that run), once sampled (the centre of mass every
-    max(dt, SAMPLE) s, particles every FRAME): the same deterministic steps, so the samples are the
-    timed run's states."""
+def trajectory(sim, dt: float, t_end: float, repeats: int = 1) -> dict:
+    """Run from the scene's start: ``repeats`` times timed in long launches without readbacks (the
+    median wall time [s], ``ti.sync()`` around each; the solver stats of the first), then once
+    sampled (the centre of mass every max(dt, SAMPLE) s, particles every FRAME): the same
+    deterministic steps, so the samples are the timed runs' states."""
     import taichi as ti
 
     total = int(round(t_end / dt))
-    sim.reset()
-    sim.set_dt(dt)
-    sim.integrator.stats()
-    ti.sync()
-    t0 = time.perf_counter()
-    sim.advance(total)
-    ti.sync()
-    wall = time.perf_counter() - t0
-    stats = sim.integrator.stats()
-    diverged = sim.diverged
+    walls, stats, diverged = [], None, False
+    for _ in range(repeats):
+        sim.reset()
+        sim.set_dt(dt)
+        sim.integrator.stats()
+        ti.sync()
+        t0 = time.perf_counter()
+        sim.advance(total)
+        ti.sync()
+        walls.append(time.perf_counter() - t0)
+        s = sim.integrator.stats()
+        stats = stats or s
+        diverged = diverged or sim.diverged
+        if diverged:
+            break
+    wall = float(np.median(walls))
     sim.reset()
     sim.set_dt(dt)
     per = max(1, int(round(SAMPLE / dt)))
@@ -253,7 +261,10 @@ def reference_task(case: str, scale: float, quick: bool) -> dict:
 
 
 def method_task(case: str, name: str, tolerance: str, scales, refs: dict, quick: bool) -> list[dict]:
-    """One row per (stiffness, step) of ``name`` on ``case`` (one compile: stiffness and steps are fields)."""
+    """One row per (stiffness, step) of ``name`` on ``case`` (one compile: stiffness and steps are
+    fields); the wall time is the median of REPEATS timed runs (1 with ``quick``), not interleaved
+    with other methods (each task is its own process)."""
+    repeats = 1 if quick else REPEATS
     from ..integrators import REGISTRY
     from .report import _task_runtime
 
@@ -280,7 +291,7 @@ def method_task(case: str, name: str, tolerance: str, scales, refs: dict, quick:
         for dt in dts:
             member_rows = []
             for sim, (scene, sets, t_end), member in zip(sims, runs, ref["members"]):
-                run = trajectory(sim, dt, t_end)
+                run = trajectory(sim, dt, t_end, repeats)
                 err = compare(run, member) if case != "ensemble" else {}
                 member_rows.append({"run": run, "err": err, "summary": summary(run) if not run["diverged"] else None,
                                     "t_end": t_end})
