@@ -234,13 +234,19 @@ def spring_passes(name: str, run: dict, n_springs: int, force_evals: int) -> flo
 
 
 # -- tasks ---------------------------------------------------------------------------------------------
+def _task_runtime():
+    """Inside a task's fresh process: the runtime of every study (CPU, f64), as ``report._task_runtime``
+    (not imported from there: report imports this module)."""
+    from .. import runtime
+
+    runtime.init("cpu", "f64")
+
+
 def reference_task(case: str, scale: float, quick: bool) -> dict:
     """RK4 at 1/32 and 1/64 of its linear limit for every run of ``case``: the reference runs at
     1/64 (stored: frames, summaries), the self-check = the 1/32 run's differences from it. (The
     issue asked for 1/16 checked against 1/32; at x1000 those differed by 1.7 cm on the quick flat
     drop, so both are halved once more.)"""
-    from .report import _task_runtime
-
     _task_runtime()
     out = {"case": case, "stiffness_scale": scale, "members": [], "self_check": {}}
     checks = []
@@ -266,7 +272,6 @@ def method_task(case: str, name: str, tolerance: str, scales, refs: dict, quick:
     with other methods (each task is its own process)."""
     repeats = 1 if quick else REPEATS
     from ..integrators import REGISTRY
-    from .report import _task_runtime
 
     _task_runtime()
     implicit = REGISTRY[name].implicit
