@@ -65,9 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
     p_demo.add_argument("--screenshot", metavar="PATH.png", help="with --frames: save the last frame to this PNG")
     p_demo.set_defaults(func=cmd_demo)
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=Choices(["accuracy", "stability", "speed", "memory", "report", "mesh"],
+    p_bench.add_argument("study", choices=Choices(["accuracy", "precision", "stability", "speed", "memory", "report", "mesh"],
                                                    hidden=["speed-worker"]),
-                         help="what to measure; report runs the first four and writes REPORT.md; mesh: the mesh-body "
+                         help="what to measure; precision: work-precision at equal error (issue 22); report runs accuracy, "
+                              "precision, stability, speed and memory and writes REPORT.md; mesh: the mesh-body "
                               "goals (build time, frame cost), MESH.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")

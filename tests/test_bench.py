@@ -110,11 +110,12 @@ def test_bench_report_quick_writes_every_file(cli, tmp_path):
     expected = ["REPORT.md", "accuracy_smooth.csv", "accuracy_smooth_wall.png", "accuracy_smooth_evals.png",
                 "accuracy_drop.csv", "accuracy_drop_wall.png", "accuracy_drop_evals.png", "stability_terrain.csv",
                 "stability_stiffness.csv", "stability_stiffness.png", "speed.csv", "speed_equal.csv", "speed.json",
-                "speed_cpu_f64.png", "speed_cpu_f32.png"]
+                "speed_cpu_f64.png", "speed_cpu_f32.png", "precision.csv", "precision_references.csv",
+                "precision_wall.png", "precision_evals.png"]
     for name in expected:
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     report = (out / "REPORT.md").read_text()
-    for heading in ("## Work-precision", "## Stability", "## Kernel speed", "Machine:", "Command:"):
+    for heading in ("## Work-precision", "## Work-precision at equal error", "## Stability", "## Kernel speed", "Machine:", "Command:"):
         assert heading in report
     import csv
 
@@ -149,3 +150,96 @@ def test_implicit_wins_from_the_first_stiffness_it_keeps_winning():
     assert lines[-1].endswith("from stiffness x100 on.")  # x1 won, x10 did not: the win starts at x100
     lines = implicit_wins_markdown(rows({1.0: WIN_MARGIN * 0.99, 10.0: 0.5}), [1.0, 10.0])
     assert lines[-1] == "Implicit does not win at the largest stiffness measured."
+
+
+def test_precision_fronts_and_equal_error_interpolation_on_synthetic_fronts():
+    """bench precision's verdict: Pareto fronts drop dominated runs, the cost at an error is
+    interpolated log-log between the two front points around it (exact on a power law), the
+    cheapest point's cost if it is already accurate enough, and None ("not reached") below the
+    front's best error; the ratio is explicit / implicit and implicit wins from the smallest
+    stiffness from which it keeps winning."""
+    import math
+
+    from taichi_soft.bench.precision import WIN_MARGIN, cost_at_error, pareto_front, verdict, wins_from
+
+    # error = 0.1 / cost^2 on the front; (3, 0.5) and (8, 0.01) are dominated; nan / diverged dropped
+    pts = [(1.0, 0.1), (2.0, 0.025), (3.0, 0.5), (4.0, 0.00625), (8.0, 0.01), (5.0, math.nan)]
+    front = pareto_front(pts)
+    assert front == [(1.0, 0.1), (2.0, 0.025), (4.0, 0.00625)]
+    for err in (0.05, 0.01, 0.00625):
+        assert cost_at_error(front, err) == pytest.approx(math.sqrt(0.1 / err), rel=1e-12)
+    assert cost_at_error(front, 0.5) == 1.0  # the cheapest run is already that accurate
+    assert cost_at_error(front, 0.001) is None  # not reached: no extrapolation
+    assert cost_at_error([], 0.1) is None
+
+    def rows(scale, explicit_cost_factor, explicit_best=1e-4):
+        """Implicit: error 0.1 / cost; explicit: the same curve, costlier by a factor, ending at explicit_best."""
+        out = []
+        for c in (1.0, 2.0, 4.0, 8.0):
+            out.append({"case": "flat", "stiffness_scale": scale, "integrator": "fast_mass_spring", "diverged": False,
+                        "wall_per_sim_s": c, "error": 0.1 / c})
+            e = max(0.1 / c, explicit_best)
+            out.append({"case": "flat", "stiffness_scale": scale, "integrator": "rk4", "diverged": False,
+                        "wall_per_sim_s": c * explicit_cost_factor, "error": e})
+        out.append({"case": "flat", "stiffness_scale": scale, "integrator": "rk4", "diverged": True,
+                    "wall_per_sim_s": 0.01, "error": math.nan})  # a diverged run never counts
+        return out
+
+    v = verdict(rows(1.0, 0.5) + rows(10.0, 3.0) + rows(100.0, 3.0, explicit_best=0.05), errors=(0.05, 0.02))
+    at = {(x["stiffness_scale"], x["error_m"]): x for x in v}
+    assert at[1.0, 0.05]["implicit_cost"] == pytest.approx(2.0) and at[1.0, 0.05]["ratio"] == pytest.approx(0.5)
+    assert at[10.0, 0.02]["explicit_cost"] == pytest.approx(15.0) and at[10.0, 0.02]["ratio"] == pytest.approx(3.0)
+    assert at[100.0, 0.02]["explicit_cost"] is None and at[100.0, 0.02]["ratio"] == math.inf  # implicit only
+    assert wins_from(v, "flat", 0.02) == 10.0
+    # a loss at the largest stiffness: no win
+    v = verdict(rows(1.0, 3.0) + rows(10.0, 1.0 / WIN_MARGIN), errors=(0.05,))
+    assert wins_from(v, "flat", 0.05) is None
+
+
+def test_bench_precision_quick_writes_files_and_its_verdict(cli, tmp_path):
+    """``bench precision --quick``: the CSVs and plots, one row per (case, method, stiffness, step),
+    explicit steps at or below 0.9 x their linear limit, and a Markdown verdict that is the one the
+    verdict functions give on the CSV's rows (recomputed here)."""
+    import csv
+    import math
+
+    from taichi_soft.bench import precision
+
+    out = tmp_path / "prec"
+    r = cli("bench", "precision", "--quick", "--workers", "2", "--out", out, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    for name in ("PRECISION.md", "precision.csv", "precision_references.csv", "precision_wall.png", "precision_evals.png"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    rows = list(csv.DictReader(open(out / "precision.csv")))
+    for row in rows:
+        for k in ("stiffness_scale", "dt", "wall_per_sim_s", "spring_passes_per_sim_s", "error"):
+            row[k] = float(row[k])
+        row["diverged"] = row["diverged"] == "True"
+    keys = {(r["case"], r["integrator"], r["stiffness_scale"]) for r in rows}
+    assert keys == {(c, m, s) for c in precision.CASES for m in precision.QUICK_METHODS for s in precision.QUICK_STIFFNESS}
+    for row in rows:
+        if row["integrator"] == "fast_mass_spring":
+            assert any(row["dt"] == pytest.approx(d) for d in precision.QUICK_IMPLICIT_STEPS)
+            assert int(row["failed_solve_steps"]) >= 0 and int(row["energy_clamped_steps"]) >= 0  # counted
+        else:
+            assert float(row["dt_over_limit"]) <= 0.9 + 1e-9
+        assert row["diverged"] or math.isfinite(row["error"]) or row["case"] == "ensemble"
+    refs = list(csv.DictReader(open(out / "precision_references.csv")))
+    assert {(x["case"], float(x["stiffness_scale"])) for x in refs} == {(c, s) for c in precision.CASES
+                                                                         for s in precision.QUICK_STIFFNESS}
+    md = (out / "PRECISION.md").read_text()
+    assert "## Work-precision at equal error" in md and "Command:" in md and "Machine:" in md
+    wall_table = md.split("### Verdict")[1].splitlines()  # the first verdict: wall time
+    for v in precision.verdict(rows):
+        cells = f"| {v['case']} | x{v['stiffness_scale']:g} |"
+        line = next(ln for ln in wall_table if ln.startswith(cells))
+        assert f"{precision._cost(v['implicit_cost'])} / {precision._cost(v['explicit_cost'])} / {precision._ratio(v['ratio'])}" in line
+    for case in precision.CASES:
+        w = precision.wins_from(precision.verdict(rows), case, 0.2)
+        assert (f"20 cm: x{w:g}" if w is not None else "20 cm: never") in md
+
+
+def test_bench_precision_bad_workers_is_refused_before_any_work(cli, tmp_path):
+    r = cli("bench", "precision", "--quick", "--workers", "0", "--out", tmp_path / "x", timeout=60)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--workers" in r.stderr
+    assert not (tmp_path / "x").exists()

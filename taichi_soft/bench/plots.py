@@ -89,3 +89,48 @@ def speed_bars(rows: list[dict], path, title: str):
     fig.tight_layout()
     write_atomic(Path(path), lambda tmp: fig.savefig(tmp))
     plt.close(fig)
+
+
+def precision_fronts(rows: list[dict], path, cost_key: str, cost_label: str):
+    """Error [m] against cost, one panel per (case, stiffness), one line per (integrator, tolerance);
+    each family's Pareto front dashed (implicit black, explicit grey)."""
+    from ..integrators import REGISTRY
+    from .precision import pareto_front
+
+    cases = list(dict.fromkeys(r["case"] for r in rows))
+    scales = list(dict.fromkeys(r["stiffness_scale"] for r in rows))
+    if not cases:
+        return
+    fig, axes = plt.subplots(len(cases), len(scales), figsize=(3.6 * len(scales), 3.0 * len(cases)), dpi=90,
+                             squeeze=False)
+    for i, case in enumerate(cases):
+        for j, scale in enumerate(scales):
+            ax = axes[i][j]
+            sub = [r for r in rows if r["case"] == case and r["stiffness_scale"] == scale and not r["diverged"]
+                   and r["error"] > 0 and math.isfinite(r["error"])]
+            series = {}
+            for r in sub:
+                series.setdefault((r["integrator"], r["tolerance"]), []).append(r)
+            for k, ((name, tol), rs) in enumerate(series.items()):
+                rs = sorted(rs, key=lambda r: r[cost_key])
+                label = name if tol in ("-", None) else f"{name} ({tol})"
+                ax.plot([r[cost_key] for r in rs], [r["error"] for r in rs], marker=MARKERS[k % len(MARKERS)],
+                        ms=3, lw=0.8, label=label)
+            for implicit, color in ((True, "black"), (False, "grey")):
+                front = pareto_front([(r[cost_key], r["error"]) for r in sub if REGISTRY[r["integrator"]].implicit == implicit])
+                if front:
+                    ax.plot(*zip(*front), ls="--", color=color, lw=1.5)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_title(f"{case}, stiffness x{scale:g}", fontsize=9)
+            ax.grid(True, which="both", alpha=0.3)
+            if i == len(cases) - 1:
+                ax.set_xlabel(cost_label, fontsize=8)
+            if j == 0:
+                ax.set_ylabel("error [m]", fontsize=8)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=7)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    write_atomic(Path(path), lambda tmp: fig.savefig(tmp))
+    plt.close(fig)

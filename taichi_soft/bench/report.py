@@ -135,6 +135,55 @@ def write_accuracy(result: dict, out_dir: Path) -> list[str]:
     return files
 
 
+# -- precision (work-precision at equal error, bench/precision.py) -----------------------------------------
+def run_precision(quick: bool, executor=None, scales=None) -> dict:
+    """References first (one task per case x stiffness), then one task per case x method x tolerance
+    over every stiffness (one compile each)."""
+    from ..tasks import Task
+    from . import precision
+
+    scales = list(scales or (precision.QUICK_STIFFNESS if quick else precision.STIFFNESS))
+    out = {"rows": [], "references": [], "interrupted": False, "failed": {}, "quick": quick}
+    refs, out["interrupted"], out["failed"] = _sweep(
+        [Task(f"precision-reference/{case}/{s:g}", "taichi_soft.bench.precision:reference_task",
+              {"case": case, "scale": s, "quick": quick}) for case in precision.CASES for s in scales],
+        executor, "precision references")
+    out["references"] = [{k: v for k, v in r.items() if k != "members"} for r in refs]
+    if out["interrupted"]:
+        return out
+    by_key = {f"{r['case']}/{r['stiffness_scale']:g}": r for r in refs}
+    tasks = []
+    for case in precision.CASES:
+        case_refs = {k: v for k, v in by_key.items() if k.startswith(case + "/")}
+        if len(case_refs) < len(scales):
+            continue  # a reference failed: its rows are missing (listed as failed)
+        for name, cls in REGISTRY.items():
+            if quick and name not in precision.QUICK_METHODS:
+                continue
+            tols = precision.QUICK_TOLERANCES if quick else list(precision.TOLERANCES)
+            for tol in (tols if cls.implicit else ["-"]):
+                tasks.append(Task(f"precision/{case}/{name}/{tol}", "taichi_soft.bench.precision:method_task",
+                                  {"case": case, "name": name, "tolerance": tol if cls.implicit else "default",
+                                   "scales": scales, "refs": case_refs, "quick": quick}))
+    rows, out["interrupted"], failed = _sweep(tasks, executor, "precision")
+    out["failed"].update(failed)
+    out["rows"] = rows
+    return out
+
+
+def write_precision(result: dict, out_dir: Path) -> list[str]:
+    from . import plots
+
+    write_csv(result["rows"], out_dir / "precision.csv")
+    write_csv([{"case": r["case"], "stiffness_scale": r["stiffness_scale"], "dt": r["dt"], **r["self_check"]}
+               for r in result["references"]], out_dir / "precision_references.csv")
+    plots.precision_fronts(result["rows"], out_dir / "precision_wall.png", "wall_per_sim_s",
+                           "wall s per simulated s")
+    plots.precision_fronts(result["rows"], out_dir / "precision_evals.png", "spring_passes_per_sim_s",
+                           "spring passes per simulated s")
+    return ["precision.csv", "precision_references.csv", "precision_wall.png", "precision_evals.png"]
+
+
 # -- stability ---------------------------------------------------------------------------------------------
 def run_stability(quick: bool, executor=None, names=None) -> dict:
     """Largest stable dt per integrator x terrain (default stiffness), then per integrator x stiffness on
@@ -586,20 +635,24 @@ def equal_settings_markdown(rows: list[dict], load) -> list[str]:
 
 
 def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | None, speed: dict | None,
-                 seconds: float, mem: dict | None = None, name: str = "REPORT.md") -> Path:
+                 seconds: float, mem: dict | None = None, name: str = "REPORT.md", prec: dict | None = None) -> Path:
     """The Markdown report of the studies given, as ``out_dir / name`` (``bench speed`` writes
     SPEED.md: a single study never replaces the full REPORT.md)."""
     info = machine.describe()
     parts = ["# taichi-soft benchmark report", "",
              f"Command: `{command}` ({seconds / 60:.1f} min)", "", "Machine:", "", machine.markdown(info)]
-    if any(r and r.get("interrupted") for r in (acc, stab, speed, mem)):
+    if any(r and r.get("interrupted") for r in (acc, stab, speed, mem, prec)):
         parts += ["**Interrupted (Ctrl-C): the tables hold what was measured before the stop.**", ""]
-    failed = {k: v for r in (acc, stab) if r for k, v in r.get("failed", {}).items()}
+    failed = {k: v for r in (acc, stab, prec) if r for k, v in r.get("failed", {}).items()}
     if failed:
         parts += [f"**Failed tasks (each submitted {RETRIES + 1} times): their rows are missing from the tables.**", ""]
         parts += [f"* `{k}`: {v[:300]}" for k, v in failed.items()] + [""]
     if acc:
         parts.append(accuracy_markdown(acc))
+    if prec:
+        from .precision import markdown as precision_markdown
+
+        parts.append(precision_markdown(prec))
     if stab:
         parts.append(stability_markdown(stab))
     if speed:

@@ -10,7 +10,7 @@ from .common import (DEFAULT_OUT, EXIT_OK, EXIT_TASKS_FAILED, check_output_dir)
 
 
 def cmd_bench(args) -> int:
-    """``bench accuracy|stability|speed|memory|report``: measure and write CSV, PNG and Markdown (docs/benchmarks/REPORT.md)."""
+    """``bench accuracy|precision|stability|speed|memory|report``: measure and write CSV, PNG and Markdown (docs/benchmarks/REPORT.md)."""
     import time
 
     from .. import runtime
@@ -49,41 +49,44 @@ def cmd_bench(args) -> int:
     from ..bench import report
 
     start = time.perf_counter()
-    acc = stab = speed = mem = None
+    acc = stab = speed = mem = prec = None
     files = []
     try:
         if args.study in ("accuracy", "report"):
             acc = report.run_accuracy(args.quick, executor)
             files += report.write_accuracy(acc, out_dir)
-        if args.study in ("stability", "report") and not (acc and acc["interrupted"]):
+        if args.study in ("precision", "report") and not (acc and acc["interrupted"]):
+            prec = report.run_precision(args.quick, executor)
+            files += report.write_precision(prec, out_dir)
+        if args.study in ("stability", "report") and not any(r and r["interrupted"] for r in (acc, prec)):
             stab = report.run_stability(args.quick, executor)
             files += report.write_stability(stab, out_dir)
     finally:
         if executor is not None:
             executor.close()
-    if args.study in ("speed", "report") and not any(r and r["interrupted"] for r in (acc, stab)):
+    if args.study in ("speed", "report") and not any(r and r["interrupted"] for r in (acc, prec, stab)):
         runtime.init("cpu", "f64")  # speed_configs asks Taichi which backends this machine has
         bar = CountBar(1, "bench speed", unit="config")
         speed = report.run_speed(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
         bar.close()
         files += report.write_speed(speed, out_dir)
-    if args.study in ("memory", "report") and not any(r and r["interrupted"] for r in (acc, stab, speed)):
+    if args.study in ("memory", "report") and not any(r and r["interrupted"] for r in (acc, prec, stab, speed)):
         bar = CountBar(1, "bench memory", unit="size")
         mem = report.run_memory(args.quick, lambda done, total, what: bar.update(done, str(what)[:60], total=total))
         bar.close()
         files += report.write_memory(mem, out_dir)
     command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
     name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
-    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem, name)
+    md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem, name, prec)
     files.append(md.name)
     if acc:
         for case, data in acc["cases"].items():
             orders = ", ".join(f"{k} {v:.2f}" for k, v in data["orders"].items() if v is not None)
             print(f"fitted orders ({case}): {orders}")
     print(f"wrote {len(files)} files to {out_dir}: {md}")
-    failed = {k: v for r in (acc, stab) if r for k, v in r["failed"].items()}
+    failed = {k: v for r in (acc, prec, stab) if r for k, v in r["failed"].items()}
     for key, err in failed.items():
         print(f"bench {args.study}: task {key} FAILED after {RETRIES + 1} attempts: {err}", file=sys.stderr)
-    if any(r and r["interrupted"] for r in (acc, stab, speed, mem)):
+    if any(r and r["interrupted"] for r in (acc, prec, stab, speed, mem)):
         return 130
     return EXIT_TASKS_FAILED if failed else EXIT_OK
