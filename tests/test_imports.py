@@ -106,7 +106,7 @@ def test_the_graph_reader_sees_relative_and_function_level_imports():
     assert "taichi_soft.model" in graph["taichi_soft.scene"]  # from .model import BodySpec
     assert "taichi_soft.runtime" in graph["taichi_soft.simulation"]  # from . import runtime
     assert "taichi_soft.linalg" in graph["taichi_soft.integrators.implicit.newton"]  # from ...linalg import PCG
-    assert "taichi_soft.gallery" in graph["taichi_soft.cli"]  # inside cmd_gallery
+    assert "taichi_soft.gallery" in graph["taichi_soft.commands.gallery"]  # inside cmd_gallery
     assert _circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [frozenset("abc")]
     assert _circles({"a": {"a", "b"}, "b": set()}) == []
 
