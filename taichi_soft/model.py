@@ -261,6 +261,8 @@ class Model:
         self.spring_ends = ti.Vector.field(2, ti.i32, m)
         self.spring_rest = ti.field(float, m)
         self.spring_group = ti.field(ti.i32, m)
+        # Written only through the set_* methods below, which tell the listeners (a solver that
+        # factorised a matrix from them must know): kernels read them, nothing else writes them.
         self.group_k = ti.field(float, max(self.n_groups, 1))
         self.group_kd = ti.field(float, max(self.n_groups, 1))
         self.adj_offset = self.adj_other = self.adj_rest = self.adj_group = self.adj_spring = None

@@ -21,7 +21,7 @@ for v in variants:
     for sc in scales:
         opts = [f"solver.{a}" for a in v.split() if a]
         sim = Simulation(load_scene("plane", opts, integrator_names=names()), name, DT)
-        sim.model.group_k.from_numpy(sim.model.group_k.to_numpy() * sc)
+        sim.model.set_group_stiffness(sim.model.group_k.to_numpy()[: sim.model.n_groups] * sc)
         sim.set_dt(DT)
         sims[(v, sc)] = sim
 wall = {k: [] for k in sims}; stats = {}

@@ -22,7 +22,7 @@ for sc in scales:
     tot_it = tot_t = tot_res = tot_cg = 0.0; cl = 0
     for ang in angles:
         sim = Simulation(load_scene(SCENE, opts + EXTRA + [f"body.0.rotation.degrees={ang}"], integrator_names=names()), NAME, 1/30)
-        sim.model.group_k.from_numpy(sim.model.group_k.to_numpy() * sc)
+        sim.model.set_group_stiffness(sim.model.group_k.to_numpy()[: sim.model.n_groups] * sc)
         sim.set_dt(1/30)
         best = 1e9
         for rep in range(2):
