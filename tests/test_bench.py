@@ -243,3 +243,15 @@ def test_bench_precision_bad_workers_is_refused_before_any_work(cli, tmp_path):
     r = cli("bench", "precision", "--quick", "--workers", "0", "--out", tmp_path / "x", timeout=60)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--workers" in r.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_spring_passes_count_every_evaluation_an_implicit_step_makes():
+    """The work axis of the benchmarks: explicit methods their force evaluations; an implicit step
+    one pass per objective or gradient evaluation and one per CG Hessian product (not 1 per step)."""
+    from taichi_soft.integrators import REGISTRY
+
+    assert REGISTRY["rk4"].spring_passes_per_step({}) == 4
+    newton = {"newton_iterations_per_step": 3.0, "line_search_halvings_per_step": 0.5, "cg_iterations_per_step": 40.0}
+    assert REGISTRY["implicit_euler"].spring_passes_per_step(newton) == 1 + 3 + 0.5 + 40
+    local_global = {"local_global_iterations_per_step": 12.0, "cg_iterations_per_step": 0.0}
+    assert REGISTRY["fast_mass_spring"].spring_passes_per_step(local_global) == 1 + 12

@@ -34,7 +34,7 @@ def work_precision(rows: list[dict], path, title: str, cost_key: str = "wall_s",
             ax.scatter([r[cost_key] for r in bad], [top] * len(bad), marker="x", color="red", zorder=5)
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel({"wall_s": "wall time [s]", "force_evals": "force evaluations"}.get(cost_key, cost_key))
+    ax.set_xlabel({"wall_s": "wall time [s]", "force_evals": "spring passes (force, gradient and Hessian-product evaluations)"}.get(cost_key, cost_key))
     ax.set_ylabel("RMS position error [m]")
     ax.set_title(title + ("  (red x: diverged)" if any(r["diverged"] for r in rows) else ""))
     ax.grid(True, which="both", alpha=0.3)

@@ -222,16 +222,11 @@ def compare(run: dict, ref: dict) -> dict:
     return {"com_error": float(com), "shape_error": float(shape)}
 
 
-def spring_passes(name: str, run: dict, n_springs: int, force_evals: int) -> float:
-    """Passes over all springs x springs: explicit, the force evaluations; implicit, one per gradient
-    (1 + iterations + line-search halvings per step) plus one per CG iteration (a Hessian product)."""
-    s = run["stats"]
-    if "force_evaluations_per_step" in s:
-        per_step = force_evals
-    else:
-        outer = s.get("newton_iterations_per_step", s.get("local_global_iterations_per_step", 0.0))
-        per_step = 1.0 + outer + s.get("line_search_halvings_per_step", 0.0) + s.get("cg_iterations_per_step", 0.0)
-    return float(per_step * run["steps"] * n_springs)
+def spring_passes(name: str, run: dict, n_springs: int) -> float:
+    """Passes over all springs x springs of ``run`` (``Integrator.spring_passes_per_step``)."""
+    from ..integrators import REGISTRY
+
+    return float(REGISTRY[name].spring_passes_per_step(run["stats"]) * run["steps"] * n_springs)
 
 
 # -- tasks ---------------------------------------------------------------------------------------------
@@ -312,7 +307,7 @@ def _row(case, name, tolerance, scale, dt, limit, members, ref, sim) -> dict:
     wall = sum(m["run"]["wall_s"] for m in members)
     sim_time = sum(m["t_end"] for m in members)
     n_springs = sim.model.n_springs
-    passes = sum(spring_passes(name, m["run"], n_springs, sim.integrator.force_evals) for m in members)
+    passes = sum(spring_passes(name, m["run"], n_springs) for m in members)
     s = members[0]["run"]["stats"]
     row = {"case": case, "integrator": name, "tolerance": tolerance, "stiffness_scale": scale, "dt": dt,
            "dt_over_limit": dt / limit if math.isfinite(limit) else None, "diverged": diverged,

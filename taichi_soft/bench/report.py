@@ -129,7 +129,7 @@ def write_accuracy(result: dict, out_dir: Path) -> list[str]:
     for case, data in result["cases"].items():
         write_csv(data["rows"], out_dir / f"accuracy_{case}.csv")
         plots.work_precision(data["rows"], out_dir / f"accuracy_{case}_wall.png", f"{case}: error vs wall time")
-        plots.work_precision(data["rows"], out_dir / f"accuracy_{case}_evals.png", f"{case}: error vs force evaluations",
+        plots.work_precision(data["rows"], out_dir / f"accuracy_{case}_evals.png", f"{case}: error vs spring passes",
                              cost_key="force_evals")
         files += [f"accuracy_{case}.csv", f"accuracy_{case}_wall.png", f"accuracy_{case}_evals.png"]
     return files
@@ -416,10 +416,11 @@ def accuracy_markdown(result: dict) -> str:
            "RMS particle position error [m] against RK4 (f64, fast math off) at a step 10 times smaller than the "
            "smallest swept. `smooth`: free-floating 5^3 cube started stretched (no contact); `drop`: 5^3 cube dropped "
            "onto the plane (contact: not smooth, orders drop). Cost: wall time (minimum of repeats after a warm-up) "
-           "and force evaluations.", ""]
+           "and spring passes (force evaluations; for the implicit solvers every objective, gradient and "
+           "Hessian-product evaluation, `Integrator.spring_passes_per_step`).", ""]
     for case, data in result["cases"].items():
         out += [f"### {case}", "", f"![{case} error vs wall time](accuracy_{case}_wall.png)",
-                f"![{case} error vs force evaluations](accuracy_{case}_evals.png)", "",
+                f"![{case} error vs spring passes](accuracy_{case}_evals.png)", "",
                 "| integrator | fitted order (final error vs dt) | smallest error [m] | its wall time [s] |", "|---|---:|---:|---:|"]
         for name, order in data["orders"].items():
             ok = [r for r in data["rows"] if r["integrator"] == name and not r["diverged"]]

@@ -156,6 +156,13 @@ class Integrator:
         """The model's springs or masses changed (``model.CHANGED_*`` bits); integrators that keep
         something derived from them refresh it here. The explicit ones read the fields each step."""
 
+    @classmethod
+    def spring_passes_per_step(cls, stats: dict) -> float:
+        """Passes over all springs per step (force, gradient or Hessian-product evaluations), from
+        this integrator's ``stats()`` averages: the machine-independent work the benchmarks plot.
+        Explicit methods: their force evaluations per step."""
+        return float(cls.force_evals)
+
     def stats(self) -> dict:
         """Per-step work counters for the run summary."""
         return {"force_evaluations_per_step": self.force_evals}

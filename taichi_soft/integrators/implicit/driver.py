@@ -498,6 +498,14 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         bad = int(self.diverged_step[None])
         return bad - start + 1 if self.diverged else n_steps
 
+    @classmethod
+    def spring_passes_per_step(cls, stats: dict) -> float:
+        """One pass per objective evaluation (the reference, each iteration's gradient and each
+        line-search trial: 1 + iterations + halvings) plus one per CG iteration (a Hessian
+        product), from ``stats()``'s per-step averages."""
+        outer = stats.get("newton_iterations_per_step", stats.get("local_global_iterations_per_step", 0.0))
+        return 1.0 + outer + stats.get("line_search_halvings_per_step", 0.0) + stats.get("cg_iterations_per_step", 0.0)
+
     def notify_model_changed(self, flags: int):
         super().notify_model_changed(flags)
         if flags & CHANGED_MASSES:
