@@ -5,7 +5,7 @@
 Times, in one process and interleaved (one repeat of each in turn, medians), semi-implicit Euler
 steps of the same stretched n^3 cube (no terrain) with gather kernels that differ in one thing:
 
-* ``yardstick``: the plain kernel of ../shared/bench/taichi_ref.py --mode gather --perspring
+* ``yardstick``: the plain kernel of the yardstick taichi_ref.py (outside this repository; re-implemented here) --mode gather --perspring
   (CSR rows, ``d / length``, no zero-length guard, k and kd per entry);
 * ``csr_branch``: the engine's old spring loop: ``if length > 0`` around the force (CSR rows);
 * ``csr``: the same without the branch (``length + TINY``, forces.spring_force);

@@ -156,7 +156,7 @@ def _warp_kernels(fast_math=False):
 
 
 class YardstickStepper:
-    """The plain-Taichi yardstick (../shared/bench/taichi_ref.py --mode gather --perspring) on the
+    """The plain-Taichi yardstick (the yardstick taichi_ref.py (outside this repository; re-implemented here) --mode gather --perspring) on the
     engine's model: one fused parallel loop per step, each particle sums its springs from a CSR
     list (every spring twice), stiffness and damping read per entry from fields, ping-pong state.
     No terrain, no divergence check, constants baked in: what a plain Taichi kernel does with

@@ -584,7 +584,7 @@ def equal_settings_markdown(rows: list[dict], load) -> list[str]:
            "of the repeats. Warp: its CPU backend (one thread) with its `fast_math` module option. `ns / spring`: "
            "wall time per step over the number of springs; `ns / eval`: over the spring evaluations (a gather "
            "evaluates each spring twice, once from each end). `yardstick`: the plain Taichi gather kernel of "
-           "../shared/bench/taichi_ref.py (CSR rows, per-entry k and kd, no terrain, no checks) on the same cube. "
+           "the yardstick taichi_ref.py (outside this repository; re-implemented here) (CSR rows, per-entry k and kd, no terrain, no checks) on the same cube. "
            "`via run`: the engine through `Simulation.run` (30 fps frame schedule, progress callback) with the "
            "plane terrain, as `run` without a video does. `steps / CPU s`: steps per second of the worker's CPU "
            "time (all its threads): on a loaded machine, where other processes take the cores, it is the steadier "
