@@ -1,7 +1,6 @@
 """``compare``: one scene with several integrators at the same dt, one mosaic video."""
 from __future__ import annotations
 
-
 from ..memory import check_fits
 from . import common
 from .common import (DEFAULT_OUT, EXIT_OK, print_outputs, load_scene_from_args, parse_integrator_list,

@@ -1,8 +1,7 @@
 """``list``: scenes, integrators and backends."""
 from __future__ import annotations
 
-
-from .common import (EXIT_OK)
+from .common import EXIT_OK
 
 
 def cmd_list(args) -> int:
