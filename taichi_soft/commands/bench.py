@@ -1,12 +1,32 @@
 """``bench``: the studies of taichi_soft.bench, written as CSV, PNG and Markdown."""
 from __future__ import annotations
 
+import argparse
+
 import json
 import os
 import sys
 
 from ..errors import UserError
-from .common import (DEFAULT_OUT, EXIT_OK, EXIT_TASKS_FAILED, check_output_dir)
+from .common import (DEFAULT_OUT, EXIT_OK, EXIT_TASKS_FAILED, add_fast_math_arg, add_task_args,
+                     check_output_dir, Choices)
+
+
+def add_parser(sub):
+    """The ``bench`` command's arguments on the subparsers ``sub``."""
+    p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
+    p_bench.add_argument("study", choices=Choices(["accuracy", "precision", "stability", "speed", "memory", "report", "mesh"],
+                                                   hidden=["speed-worker"]),
+                         help="what to measure; precision: work-precision at equal error (issue 22); report runs accuracy, "
+                              "precision, stability, speed and memory and writes REPORT.md; mesh: the mesh-body "
+                              "goals (build time, frame cost), MESH.md")
+    p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
+    p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
+    add_task_args(p_bench)
+    p_bench.add_argument("--arch", default="cpu", help=argparse.SUPPRESS)
+    p_bench.add_argument("--precision", default="f64", help=argparse.SUPPRESS)
+    add_fast_math_arg(p_bench, False)
+    p_bench.set_defaults(func=cmd_bench)
 
 
 def cmd_bench(args) -> int:

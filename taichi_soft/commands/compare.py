@@ -3,8 +3,21 @@ from __future__ import annotations
 
 from ..memory import check_fits
 from . import common
-from .common import (DEFAULT_OUT, EXIT_OK, print_outputs, load_scene_from_args, parse_integrator_list,
-                     render_options_from_args)
+from .common import (DEFAULT_OUT, EXIT_OK, add_render_args, add_scene_args, load_scene_from_args,
+                     parse_integrator_list, print_outputs, render_options_from_args)
+
+
+DEFAULT_COMPARE = "explicit_euler,semi_implicit_euler,midpoint,rk4"  # the integrators compared by default
+
+
+def add_parser(sub):
+    """The ``compare`` command's arguments on the subparsers ``sub``."""
+    p_cmp = sub.add_parser("compare", help="run one scene with several integrators at the same dt; write a mosaic video")
+    add_scene_args(p_cmp, integrator=False)
+    p_cmp.add_argument("--integrators", default=DEFAULT_COMPARE,
+                       help=f"comma-separated integrator names, one tile each (default: {DEFAULT_COMPARE})")
+    add_render_args(p_cmp, mesh_export=False, pipeline=False)
+    p_cmp.set_defaults(func=cmd_compare)
 
 
 def cmd_compare(args) -> int:

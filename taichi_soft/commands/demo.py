@@ -7,7 +7,31 @@ from pathlib import Path
 from ..errors import UserError
 from ..memory import check_fits
 from . import common
-from .common import (EXIT_OK, EXIT_REPLAY_DIFFERS, check_output_path, load_scene_from_args)
+from .common import (EXIT_OK, EXIT_REPLAY_DIFFERS, add_scene_args, check_output_path, load_scene_from_args,
+                     resolution_arg)
+
+
+def add_parser(sub):
+    """The ``demo`` command's arguments on the subparsers ``sub``."""
+    p_demo = sub.add_parser("demo", help="open the interactive classroom window (needs a display and Vulkan)")
+    add_scene_args(p_demo)
+    next(a for a in p_demo._actions if a.dest == "duration").help = \
+        "stop the simulation at this simulated time [s] (R restarts; default: run on)"
+    p_demo.add_argument("--resolution", type=resolution_arg, metavar="WxH", default=[1280, 800],
+                        help="window size in pixels (default: 1280x800)")
+    p_demo.add_argument("--paused", action="store_true", help="start paused: Space plays (R also resets paused)")
+    p_demo.add_argument("--record", metavar="SESSION.json",
+                        help="save every input (keys, buttons, sliders, mouse grabs, pokes, pins) with its time to "
+                             "this file when the window closes, for --replay")
+    p_demo.add_argument("--replay", metavar="SESSION.json",
+                        help="play a recorded session back without a window into a video (its scene, settings, "
+                             "backend and precision come from the file; exit 7 if it ends elsewhere than the "
+                             "live session did)")
+    p_demo.add_argument("--video", metavar="PATH",
+                        help="with --replay: the video to write, .mp4 or .gif (default: out/demo-<scene>-replay-<date>.mp4)")
+    p_demo.add_argument("--frames", type=int, metavar="N", help="draw N frames, then close the window (for scripts)")
+    p_demo.add_argument("--screenshot", metavar="PATH.png", help="with --frames: save the last frame to this PNG")
+    p_demo.set_defaults(func=cmd_demo)
 
 
 def cmd_demo(args) -> int:

@@ -5,7 +5,25 @@ import math
 from pathlib import Path
 
 from ..errors import UserError
-from .common import (EXIT_OK, EXIT_TASKS_FAILED, check_output_dir, parse_integrator_list, parse_name_list)
+from .common import (DEFAULT_OUT, EXIT_OK, EXIT_TASKS_FAILED, add_task_args, check_output_dir, float_arg,
+                     parse_integrator_list, parse_name_list, resolution_arg)
+
+
+def add_parser(sub):
+    """The ``gallery`` command's arguments on the subparsers ``sub``."""
+    p_gal = sub.add_parser("gallery", help="every terrain x integrator video, a compare mosaic per terrain, "
+                                              "and an index.html that shows them all")
+    p_gal.add_argument("--terrains", metavar="A,B", help="comma-separated scene names (default: plane,tilted_plane,sphere,bowl,torus,three_cubes,pile)")
+    p_gal.add_argument("--integrators", metavar="A,B", help="comma-separated integrator names (default: all registered)")
+    p_gal.add_argument("--duration", type=float_arg("--duration"), help="simulated time [s] (default: each scene's)")
+    p_gal.add_argument("--dt", type=float_arg("--dt"),
+                       help="time step [s] for every run (default: the scene's for explicit methods, 1/60 s for implicit)")
+    p_gal.add_argument("--resolution", type=resolution_arg, metavar="WxH",
+                       help="size of each run's video (default 640x360; the compare mosaics are twice as wide and high)")
+    p_gal.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override for every run (repeatable)")
+    p_gal.add_argument("--out", default=f"{DEFAULT_OUT}/gallery", help=f"output folder (default: {DEFAULT_OUT}/gallery)")
+    add_task_args(p_gal)
+    p_gal.set_defaults(func=cmd_gallery)
 
 
 def cmd_gallery(args) -> int:

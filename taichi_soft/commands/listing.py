@@ -4,6 +4,12 @@ from __future__ import annotations
 from .common import EXIT_OK
 
 
+def add_parser(sub):
+    """The ``list`` command's arguments on the subparsers ``sub``."""
+    p_list = sub.add_parser("list", help="list scenes, integrators and backends")
+    p_list.set_defaults(func=cmd_list)
+
+
 def cmd_list(args) -> int:
     from .. import runtime
     from ..integrators import REGISTRY

@@ -9,9 +9,21 @@ from ..errors import OutputError
 from ..memory import check_fits
 from ..outfiles import finite_or_none
 from . import common
-from .common import (EXIT_DIVERGED, EXIT_OK, EXIT_OUTPUT, EXIT_UNRELIABLE, print_outputs, render_paths,
-                     runtime_args, write_output, check_output_path, load_scene_from_args,
-                     render_options_from_args)
+from .common import (EXIT_DIVERGED, EXIT_OK, EXIT_OUTPUT, EXIT_UNRELIABLE, add_render_args, add_scene_args,
+                     check_output_path, load_scene_from_args, print_outputs, render_options_from_args,
+                     render_paths, runtime_args, write_output)
+
+
+def add_parser(sub):
+    """The ``run`` command's arguments on the subparsers ``sub``."""
+    p_run = sub.add_parser("run", help="simulate a scene; write a summary, states (and video)")
+    add_scene_args(p_run)
+    p_run.add_argument("--summary", help="write a JSON run summary here")
+    p_run.add_argument("--states", help="write sampled states (t, x, v) to this .npz")
+    p_run.add_argument("--dry-run", action="store_true",
+                       help="print what would be simulated and written and the memory estimate, then exit")
+    add_render_args(p_run)
+    p_run.set_defaults(func=cmd_run)
 
 
 def cmd_run(args) -> int:
