@@ -255,3 +255,19 @@ def test_spring_passes_count_every_evaluation_an_implicit_step_makes():
     assert REGISTRY["implicit_euler"].spring_passes_per_step(newton) == 1 + 3 + 0.5 + 40
     local_global = {"local_global_iterations_per_step": 12.0, "cg_iterations_per_step": 0.0}
     assert REGISTRY["fast_mass_spring"].spring_passes_per_step(local_global) == 1 + 12
+
+
+def test_bench_energy_quick_finds_no_rise_and_writes_its_files(cli, tmp_path):
+    """The energy matrix (bench/energy.py) at its quick size: both implicit solvers on one body and on
+    three_cubes end every step at or below the energy they began with (the step's guarantee), and
+    the Markdown's verdict is the CSV's."""
+    import csv
+
+    r = cli("bench", "energy", "--quick", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = list(csv.DictReader(open(tmp_path / "energy.csv")))
+    assert {(x["solver"], x["scene"]) for x in rows} == {(s, t) for s in ("implicit_euler", "fast_mass_spring")
+                                                        for t in ("plane", "three_cubes")}
+    assert all(float(x["rise"]) <= 1e-9 and x["diverged"] == "False" and int(x["steps"]) == 30 for x in rows)
+    assert "**4 of 4 cases clean**" in (tmp_path / "ENERGY.md").read_text() and "4 of 4 cases clean" in r.stdout
+    assert cli("bench", "energy", "--quick", "--workers", "2", "--out", tmp_path / "b").returncode == 2

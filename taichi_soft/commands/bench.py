@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-
 import json
 import os
 import sys
@@ -15,11 +14,13 @@ from .common import (DEFAULT_OUT, EXIT_OK, EXIT_TASKS_FAILED, add_fast_math_arg,
 def add_parser(sub):
     """The ``bench`` command's arguments on the subparsers ``sub``."""
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=Choices(["accuracy", "precision", "stability", "speed", "memory", "report", "mesh"],
+    p_bench.add_argument("study", choices=Choices(["accuracy", "precision", "stability", "speed", "memory", "report", "mesh",
+                                                    "energy"],
                                                    hidden=["speed-worker"]),
                          help="what to measure; precision: work-precision at equal error (issue 22); report runs accuracy, "
                               "precision, stability, speed and memory and writes REPORT.md; mesh: the mesh-body "
-                              "goals (build time, frame cost), MESH.md")
+                              "goals (build time, frame cost), MESH.md; energy: the implicit solvers' energy "
+                              "matrix (terrains, stiffness, steps, two-body scenes), ENERGY.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     add_task_args(p_bench)
@@ -44,7 +45,7 @@ def cmd_bench(args) -> int:
                      kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
-    if args.study in ("speed", "memory", "mesh") and (args.workers is not None or args.scheduler is not None):
+    if args.study in ("speed", "memory", "mesh", "energy") and (args.workers is not None or args.scheduler is not None):
         raise UserError(f"bench {args.study} runs one configuration at a time (its measurements need a quiet "
                         "machine); --workers/--scheduler apply to the accuracy and stability sweeps")
     default = f"{DEFAULT_OUT}/benchmarks-quick" if args.quick else "docs/benchmarks"
@@ -63,6 +64,8 @@ def cmd_bench(args) -> int:
                   f"{f['mesh_ms']:.1f} / {f['cube_ms']:.1f} ms = {f['ratio']:.2f}x (goal 1.5x)"))
         print(f"wrote {mesh_bench.write_report(result, out_dir)}")
         return EXIT_OK
+    if args.study == "energy":  # the implicit solvers' energy matrix (bench/energy.py)
+        return _energy(args, out_dir)
     # Before any work: an unreachable --scheduler is refused here, in a few seconds.
     executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -110,3 +113,31 @@ def cmd_bench(args) -> int:
     if any(r and r["interrupted"] for r in (acc, prec, stab, speed, mem)):
         return 130
     return EXIT_TASKS_FAILED if failed else EXIT_OK
+
+
+def _energy(args, out_dir) -> int:
+    """``bench energy``: every case in this process; energy.csv and ENERGY.md in ``out_dir``."""
+    import time
+
+    from .. import runtime
+    from ..bench import energy, machine
+    from ..bench.report import write_csv, write_text
+    from ..progress import CountBar
+
+    runtime.init("cpu", "f64")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    bar = CountBar(len(energy.cases(args.quick)), "bench energy", unit="case")
+    result = energy.run(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
+    bar.close()
+    command = "python main.py bench energy" + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
+    verdict = energy.markdown(result)
+    lines = ["# Energy matrix", "", f"Command: `{command}` ({time.perf_counter() - start:.0f} s).", "", "Machine:",
+             machine.markdown(machine.describe()), ""] + verdict
+    write_csv(result["rows"], out_dir / "energy.csv")
+    write_text(out_dir / "ENERGY.md", "\n".join(lines))
+    print(next(line for line in verdict if line.startswith("**")))
+    print(f"wrote energy.csv and ENERGY.md to {out_dir}")
+    if result["interrupted"]:
+        raise KeyboardInterrupt
+    return EXIT_OK

@@ -1,0 +1,141 @@
+"""``python main.py bench energy``: the implicit solvers' energy matrix (issues 11, 22, 23).
+
+An implicit step minimises an objective whose value bounds the energy the step ends with, so on
+undamped-or-damped soft bodies with inelastic contact the total energy must never rise above its
+running minimum. The matrix checks that where it is hardest:
+
+* one body: both implicit solvers x the four terrains x stiffness x1, x10, x100, x1000 x dt 1/60,
+  1/30 and 0.1 s, the default cube's 3-s drop with the contact defaults;
+* two bodies: both solvers x ``three_cubes`` and ``pile`` x the same steps, the total counting the
+  body-body penalty energy (``pairs.py``: kappa m_ij / (2 h^2) o^2 per overlapping pair).
+
+Per case: the largest rise of the total energy above its running minimum, relative to the largest
+|E| (a case is clean at 1e-9 or below), divergence, the energy clamp's count, the deepest particle
+inside the terrain and the deepest overlap between bodies, and the candidate pairs that did not fit
+the pair list (``health``). ``quick`` (what the tests run): a 3^3 cube, x1, 1/30 s, 1 s, and
+three_cubes made of 4^3 cubes.
+
+(Before this study the matrix was ``scripts/bench/matrix11.py``; its numbers in docs/implicit.md
+are pinned to the commits they name.)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+SOLVERS = ("implicit_euler", "fast_mass_spring")
+TERRAINS = ("plane", "tilted_plane", "sphere", "bowl")
+SCALES = (1.0, 10.0, 100.0, 1000.0)
+STEPS = (1 / 60, 1 / 30, 0.1)  # [s]
+SCENES = ("three_cubes", "pile")
+HORIZON = 3.0  # [s]
+CLEAN = 1e-9  # largest rise above the running minimum, relative to max |E|, of a clean case
+
+
+def cases(quick: bool) -> list[dict]:
+    """Every case of the matrix: {solver, scene, sets, stiffness_scale, dt, horizon}."""
+    if quick:
+        small = ["body.0.n=3"]
+        three = [f"body.{b}.n=4" for b in range(3)]
+        return ([{"solver": s, "scene": "plane", "sets": small, "stiffness_scale": 1.0, "dt": 1 / 30, "horizon": 1.0}
+                 for s in SOLVERS]
+                + [{"solver": s, "scene": "three_cubes", "sets": three, "stiffness_scale": 1.0, "dt": 1 / 30,
+                    "horizon": 1.0} for s in SOLVERS])
+    out = [{"solver": s, "scene": t, "sets": [], "stiffness_scale": k, "dt": dt, "horizon": HORIZON}
+           for s in SOLVERS for t in TERRAINS for k in SCALES for dt in STEPS]
+    out += [{"solver": s, "scene": t, "sets": [], "stiffness_scale": 1.0, "dt": dt, "horizon": HORIZON}
+            for s in SOLVERS for t in SCENES for dt in STEPS]
+    return out
+
+
+def pair_energy(sim, x: np.ndarray, dt: float) -> tuple[float, float]:
+    """(body-body penalty energy [J] at positions ``x``, deepest overlap between bodies [m]):
+    the step's pair term over h^2 (``pairs.py``), over every pair of particles of different bodies."""
+    from ..collision import contact_radii
+
+    if len(sim.model.bodies) < 2:
+        return 0.0, 0.0
+    m, r = sim.model.mass_np, contact_radii(sim.model)
+    body = np.zeros(len(m), int)
+    for b, info in enumerate(sim.model.bodies):
+        body[info.particles] = b
+    overlap = (r[:, None] + r[None, :]) - np.linalg.norm(x[:, None] - x[None, :], axis=2)
+    overlap[body[:, None] >= body[None, :]] = 0.0  # each pair of different bodies once
+    overlap = np.maximum(overlap, 0.0)
+    m_ij = m[:, None] * m[None, :] / np.maximum(m[:, None] + m[None, :], 1e-300)
+    kappa = sim.integrator.options["contact_stiffness"]
+    return float(np.sum(0.5 * kappa * m_ij * overlap**2) / dt**2), float(overlap.max(initial=0.0))
+
+
+def run_case(case: dict) -> dict:
+    """One row of the matrix (module doc); builds its own simulation."""
+    from ..integrators import names
+    from ..scene import load_scene
+    from ..simulation import Simulation
+
+    sim = Simulation(load_scene(case["scene"], list(case["sets"]), integrator_names=names()), case["solver"], case["dt"])
+    k = sim.model.group_k.to_numpy()[: sim.model.n_groups]
+    sim.model.set_group_stiffness(k * case["stiffness_scale"])
+    dt = case["dt"]
+
+    def energy():
+        x = sim.state.numpy()[0]
+        pe, deep = pair_energy(sim, x, dt)
+        return sim.measure()["total_energy"] + pe, deep
+
+    sim.integrator.stats()  # counters from here
+    e0, _ = energy()
+    series, deepest_overlap, inside, diverged = [e0], 0.0, 0.0, False
+    for _ in range(int(round(case["horizon"] / dt))):
+        sim.advance(1)
+        if sim.diverged:
+            diverged = True
+            break
+        e, deep = energy()
+        series.append(e)
+        deepest_overlap = max(deepest_overlap, deep)
+        inside = max(inside, -sim.measure()["min_terrain_distance"])
+    e = np.asarray(series)
+    rise = float((e[1:] - np.minimum.accumulate(e)[:-1]).max(initial=-np.inf) / max(np.abs(e).max(), 1e-300))
+    s = sim.integrator.stats()
+    return {"solver": case["solver"], "scene": case["scene"], "stiffness_scale": case["stiffness_scale"], "dt": dt,
+            "steps": int(s["steps"]), "rise": rise, "diverged": diverged,
+            "clean": bool(not diverged and rise <= CLEAN), "energy_clamped_steps": int(s["energy_clamped_steps"]),
+            "failed_solve_steps": int(s["failed_solve_steps"]), "deepest_inside_m": max(inside, 0.0),
+            "deepest_overlap_m": deepest_overlap, "pairs_dropped": int(s.get("body_pair_overflows", 0))}
+
+
+def run(quick: bool, progress=None) -> dict:
+    """Every case in turn, in this process (one Taichi runtime: the caller starts it)."""
+    todo = cases(quick)
+    rows = []
+    try:
+        for k, case in enumerate(todo):
+            rows.append(run_case(case))
+            if progress:
+                progress(k + 1, len(todo), f"{case['solver']} {case['scene']} dt {case['dt']:.4g}")
+    except KeyboardInterrupt:
+        return {"rows": rows, "interrupted": True, "quick": quick}
+    return {"rows": rows, "interrupted": False, "quick": quick}
+
+
+def markdown(result: dict) -> list[str]:
+    """The matrix's Markdown: the verdict line, then every case that was not clean or needed the clamp."""
+    rows = result["rows"]
+    clean = sum(r["clean"] for r in rows)
+    clamped = sum(r["energy_clamped_steps"] for r in rows)
+    steps = sum(r["steps"] for r in rows)
+    out = ["## Energy matrix (implicit solvers)", "",
+           f"**{clean} of {len(rows)} cases clean** (no rise of the total energy above its running minimum beyond "
+           f"{CLEAN:g} of its largest |E|){' (interrupted)' if result['interrupted'] else ''}; the energy clamp acted "
+           f"on {clamped} of {steps} steps; deepest particle inside the terrain "
+           f"{max((r['deepest_inside_m'] for r in rows), default=0.0):.3g} m; deepest overlap between bodies "
+           f"{max((r['deepest_overlap_m'] for r in rows), default=0.0):.3g} m.", ""]
+    notes = [r for r in rows if not r["clean"] or r["energy_clamped_steps"] or r["pairs_dropped"]]
+    if notes:
+        out += ["| solver | scene | stiffness | dt [s] | rise / max abs E | clamps | diverged | deepest overlap [m] | "
+                "pairs dropped |", "|---|---|---:|---:|---:|---:|---|---:|---:|"]
+        out += [f"| {r['solver']} | {r['scene']} | x{r['stiffness_scale']:g} | {r['dt']:.4g} | {r['rise']:.2e} | "
+                f"{r['energy_clamped_steps']}/{r['steps']} | {r['diverged']} | {r['deepest_overlap_m']:.3g} | "
+                f"{r['pairs_dropped']} |" for r in notes]
+        out.append("")
+    return out
