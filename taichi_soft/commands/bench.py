@@ -46,8 +46,10 @@ def cmd_bench(args) -> int:
         print(json.dumps(run_speed_worker(args.quick)))
         return EXIT_OK
     if args.study in ("speed", "memory", "mesh", "energy") and (args.workers is not None or args.scheduler is not None):
-        raise UserError(f"bench {args.study} runs one configuration at a time (its measurements need a quiet "
-                        "machine); --workers/--scheduler apply to the accuracy and stability sweeps")
+        why = ("its cases run in one process" if args.study == "energy" else
+               "one configuration at a time: its measurements need a quiet machine")
+        raise UserError(f"bench {args.study} runs serially ({why}); --workers/--scheduler apply to the "
+                        "accuracy, precision and stability sweeps")
     default = f"{DEFAULT_OUT}/benchmarks-quick" if args.quick else "docs/benchmarks"
     out_dir = check_output_dir(args.out or default, "--out")
     if args.study == "mesh":  # mesh-body goals: build time and frame cost (bench/meshbody.py)
