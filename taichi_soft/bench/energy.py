@@ -66,16 +66,31 @@ def pair_energy(sim, x: np.ndarray, dt: float) -> tuple[float, float]:
     return float(np.sum(0.5 * kappa * m_ij * overlap**2) / dt**2), float(overlap.max(initial=0.0))
 
 
-def run_case(case: dict) -> dict:
-    """One row of the matrix (module doc); builds its own simulation."""
+_SIMS = {}  # one simulation per (solver, scene, overrides), reused across stiffness and dt: every
+# new Simulation allocates its own fields, and a Taichi 1.7 runtime crashes (SIGSEGV) after too many
+# field trees -- the full matrix building one per case died after about 100 of its 108 cases
+
+
+def _simulation(case: dict):
     from ..integrators import names
     from ..scene import load_scene
     from ..simulation import Simulation
 
-    sim = Simulation(load_scene(case["scene"], list(case["sets"]), integrator_names=names()), case["solver"], case["dt"])
-    k = sim.model.group_k.to_numpy()[: sim.model.n_groups]
-    sim.model.set_group_stiffness(k * case["stiffness_scale"])
+    key = (case["solver"], case["scene"], tuple(case["sets"]))
+    if key not in _SIMS:
+        sim = Simulation(load_scene(case["scene"], list(case["sets"]), integrator_names=names()), case["solver"],
+                         case["dt"])
+        _SIMS[key] = (sim, sim.model.group_k.to_numpy()[: sim.model.n_groups].copy())
+    return _SIMS[key]
+
+
+def run_case(case: dict) -> dict:
+    """One row of the matrix (module doc), from the scene's initial state."""
+    sim, base_k = _simulation(case)
+    sim.model.set_group_stiffness(base_k * case["stiffness_scale"])
     dt = case["dt"]
+    sim.set_dt(dt)
+    sim.reset()
 
     def energy():
         x = sim.state.numpy()[0]
@@ -102,20 +117,6 @@ def run_case(case: dict) -> dict:
             "clean": bool(not diverged and rise <= CLEAN), "energy_clamped_steps": int(s["energy_clamped_steps"]),
             "failed_solve_steps": int(s["failed_solve_steps"]), "deepest_inside_m": max(inside, 0.0),
             "deepest_overlap_m": deepest_overlap, "pairs_dropped": int(s.get("body_pair_overflows", 0))}
-
-
-def run(quick: bool, progress=None) -> dict:
-    """Every case in turn, in this process (one Taichi runtime: the caller starts it)."""
-    todo = cases(quick)
-    rows = []
-    try:
-        for k, case in enumerate(todo):
-            rows.append(run_case(case))
-            if progress:
-                progress(k + 1, len(todo), f"{case['solver']} {case['scene']} dt {case['dt']:.4g}")
-    except KeyboardInterrupt:
-        return {"rows": rows, "interrupted": True, "quick": quick}
-    return {"rows": rows, "interrupted": False, "quick": quick}
 
 
 def markdown(result: dict) -> list[str]:
