@@ -119,6 +119,20 @@ def run_case(case: dict) -> dict:
             "deepest_overlap_m": deepest_overlap, "pairs_dropped": int(s.get("body_pair_overflows", 0))}
 
 
+def run(quick: bool, progress=None) -> dict:
+    """Every case in turn, in this process (one Taichi runtime: the caller starts it)."""
+    todo = cases(quick)
+    rows = []
+    try:
+        for k, case in enumerate(todo):
+            rows.append(run_case(case))
+            if progress:
+                progress(k + 1, len(todo), f"{case['solver']} {case['scene']} dt {case['dt']:.4g}")
+    except KeyboardInterrupt:
+        return {"rows": rows, "interrupted": True, "quick": quick}
+    return {"rows": rows, "interrupted": False, "quick": quick}
+
+
 def markdown(result: dict) -> list[str]:
     """The matrix's Markdown: the verdict line, then every case that was not clean or needed the clamp."""
     rows = result["rows"]
