@@ -66,27 +66,27 @@ def pair_energy(sim, x: np.ndarray, dt: float) -> tuple[float, float]:
     return float(np.sum(0.5 * kappa * m_ij * overlap**2) / dt**2), float(overlap.max(initial=0.0))
 
 
-_SIMS = {}  # one simulation per (solver, scene, overrides), reused across stiffness and dt: every
-# new Simulation allocates its own fields, and a Taichi 1.7 runtime crashes (SIGSEGV) after too many
-# field trees -- the full matrix building one per case died after about 100 of its 108 cases
-
-
-def _simulation(case: dict):
+def _simulation(case: dict, sims: dict):
+    """The simulation of ``case``'s solver, scene and overrides (built once into ``sims``) and its
+    scene stiffnesses. One per run and key, reused across stiffness and dt: every new Simulation
+    allocates its own fields, and a Taichi 1.7 runtime crashes (SIGSEGV) after too many field trees
+    -- the full matrix building one per case died after about 100 of its 108 cases."""
     from ..integrators import names
     from ..scene import load_scene
     from ..simulation import Simulation
 
     key = (case["solver"], case["scene"], tuple(case["sets"]))
-    if key not in _SIMS:
+    if key not in sims:
         sim = Simulation(load_scene(case["scene"], list(case["sets"]), integrator_names=names()), case["solver"],
                          case["dt"])
-        _SIMS[key] = (sim, sim.model.group_k.to_numpy()[: sim.model.n_groups].copy())
-    return _SIMS[key]
+        sims[key] = (sim, sim.model.group_k.to_numpy()[: sim.model.n_groups].copy())
+    return sims[key]
 
 
-def run_case(case: dict) -> dict:
-    """One row of the matrix (module doc), from the scene's initial state."""
-    sim, base_k = _simulation(case)
+def run_case(case: dict, sims: dict) -> dict:
+    """One row of the matrix (module doc), from the scene's initial state; ``sims`` holds the
+    simulations already built in this run (``_simulation``)."""
+    sim, base_k = _simulation(case, sims)
     sim.model.set_group_stiffness(base_k * case["stiffness_scale"])
     dt = case["dt"]
     sim.set_dt(dt)
@@ -122,10 +122,10 @@ def run_case(case: dict) -> dict:
 def run(quick: bool, progress=None) -> dict:
     """Every case in turn, in this process (one Taichi runtime: the caller starts it)."""
     todo = cases(quick)
-    rows = []
+    rows, sims = [], {}
     try:
         for k, case in enumerate(todo):
-            rows.append(run_case(case))
+            rows.append(run_case(case, sims))
             if progress:
                 progress(k + 1, len(todo), f"{case['solver']} {case['scene']} dt {case['dt']:.4g}")
     except KeyboardInterrupt:
