@@ -3,7 +3,7 @@
 The flat case of ``bench precision`` (4^3 cube, edge 2 m, bottom 2 m above the plane) at stiffness
 x1000 with ``implicit_euler`` at 1/30 ... 1/960 s, with the default contact epsilon (1 cm) and with
 a negligible one (1e-6 m): the centre of mass's first apex above the plane [m] (rest 1.0 m).
-usage (from the repository root): .venv/bin/python scripts/bench/skin22.py [INTEGRATOR]  (~1 min)"""
+usage (from the repository root): .venv/bin/python scripts/bench/skin_bounce.py [INTEGRATOR]  (~1 min)"""
 import os
 import sys
 

@@ -1,6 +1,6 @@
 """Issue 11 speed goals in one interleaved run (taichi-soft, CPU, f64, serial mode).
 
-usage (from the repository root):  .venv/bin/python scripts/bench/goals11.py [rounds]   (default 3 rounds)
+usage (from the repository root):  .venv/bin/python scripts/bench/implicit_goals.py [rounds]   (default 3 rounds)
 [EXTRA_FMS="global_solver=pcg cg_tol=0.3"] adds one more fast_mass_spring configuration.
 
 The default drop on the plane scene (10^3 cube, 2 s), spring stiffness x10, x100, x1000:

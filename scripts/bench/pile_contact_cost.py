@@ -4,7 +4,7 @@ Per frame (1/30 s) the deepest overlap between particles of different bodies, as
 smaller lattice spacing of the pair; wall seconds of the whole 6-s run with body-body contact inside
 the step (``solver.body_contact = true``) and without (bodies pass through each other): a warm-up
 step of each, then ROUNDS interleaved rounds, ``ti.sync()`` before each clock reading, medians.
-usage (from the repository root): .venv/bin/python scripts/bench/pile23.py [INTEGRATOR] [DT] [ROUNDS] [KEY=VALUE ...]
+usage (from the repository root): .venv/bin/python scripts/bench/pile_contact_cost.py [INTEGRATOR] [DT] [ROUNDS] [KEY=VALUE ...]
 (KEY=VALUE: scene overrides for both runs, as --set)"""
 import os, sys, time, json
 sys.path.insert(0, os.getcwd())

@@ -2,7 +2,7 @@
 1/30 s): one simulation per (variant, stiffness scale), a warm-up each, then interleaved rounds; medians.
 
 usage (from the repository root):
-  [DT=0.1] .venv/bin/python scripts/bench/ab11.py "history=0|history=5" 10,100,1000 [rounds] [integrator]
+  [DT=0.1] .venv/bin/python scripts/bench/ab_options.py "history=0|history=5" 10,100,1000 [rounds] [integrator]
 """
 import os, sys, time, statistics
 sys.path.insert(0, os.getcwd())

@@ -1,7 +1,7 @@
 """Issue 11: fast_mass_spring's global solve three ways on the same matrix (default 10^3 cube, dt=1/30 s, x1, f64, CPU):
 the skyline Cholesky (serial, in a kernel), ti.linalg.SparseSolver (LLT, one solve per coordinate from Python), and
 Jacobi PCG (matrix-free, to relative residual 0.1 and 1e-8). One solve of A X = B (three right-hand sides). Warm-up,
-then interleaved rounds; medians. usage (from the repository root): .venv/bin/python scripts/bench/global_solve11.py [rounds]"""
+then interleaved rounds; medians. usage (from the repository root): .venv/bin/python scripts/bench/global_solve.py [rounds]"""
 import os, sys, time, statistics, platform
 sys.path.insert(0, os.getcwd())
 import numpy as np

@@ -3,7 +3,7 @@ tests/test_consistency.py (its cube, start, tolerances and reference) at several
 
 Prints, per step (run length T_END, default 0.3 s), the end-point distance [m] from RK4 at DT_REF and the first apex's relative
 difference. usage (from the repository root):
-  .venv/bin/python scripts/bench/consistency22.py CASE SCALE DT_REF NAME:DT [NAME:DT ...]
+  .venv/bin/python scripts/bench/consistency_steps.py CASE SCALE DT_REF NAME:DT [NAME:DT ...]
   e.g. plane_tilted 1000 2.5e-6 rk4:5e-6 implicit_euler:1e-5 implicit_euler:5e-6 implicit_euler:2.5e-6"""
 import os
 import sys

@@ -3,7 +3,7 @@ rotations of 10, 25, 30, 40 and 55 degrees, 2 s at dt = 1/30 s, f64, serial): on
 (a small change at the landing changes whether the cube bounces), five compare options fairly.
 
 usage (from the repository root):
-  [NAME=implicit_euler] [SCENE=bowl] [N=15] .venv/bin/python scripts/bench/drops11.py 10,100 [solver options, e.g. history=0]
+  [NAME=implicit_euler] [SCENE=bowl] [N=15] .venv/bin/python scripts/bench/drops_rotations.py 10,100 [solver options, e.g. history=0]
 """
 import os, sys, time
 sys.path.insert(0, os.getcwd())
