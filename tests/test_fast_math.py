@@ -155,7 +155,7 @@ def test_stiffness_change_reaches_the_fused_kernels(mode, forces):
     state.set(x0, np.zeros_like(x0))
     integ.advance(state, 1e-3, 1)
     model.set_spring_params(0, "stretch", k=8000.0)
-    model.group_kd.from_numpy(model.group_kd.to_numpy() * 2)  # a direct write, as the stability sweep does
+    model.group_kd.from_numpy(model.group_kd.to_numpy() * 2)  # a direct field write: the kernels read it each step
     x1, v1 = state.numpy()
     _, vr = reference_step(model, terrain, "semi_implicit_euler", x1, v1, 1e-3)
     integ.advance(state, 1e-3, 1)
