@@ -141,16 +141,35 @@ class ContactSet:
         return xi
 
     @ti.func
-    def _bounce(self, i, vi):
-        """Velocity change [m/s] restitution asks for a held particle with solved velocity vi."""
+    def _bounce(self, i, vi, xi):
+        """Velocity change [m/s] restitution asks for particle i at xi with solved velocity vi: a
+        held particle, or one the step left inside the terrain's skin (``epsilon``) still approaching.
+
+        A held particle approached with its velocity at the start of the step (its solved normal
+        velocity is about 0); below the bounce threshold it keeps what the solve gave it. A skin
+        particle approaches with its solved velocity; it is held for the restitution solve, so the
+        springs carry its impact to the body, and stops below the threshold (as in
+        ``Terrain.respond``, whose local reflection, given to the bottom layer alone, a stiff body
+        swallowed: issue 22's erratic bounce, docs/implicit.md)."""
         t = self.terrain
         delta = ti.Vector.zero(float, 3)
+        skin = 0
+        if not self.active[i] and self._free(i):
+            dist, nq = t.query(i, xi)
+            if dist < t.epsilon[None] and nq.dot(vi) < 0:
+                skin = 1
+                self.active[i] = 1
+                self.normal[i] = nq
         if self.active[i] and self._free(i):
             nrm = self.normal[i]
+            vn = nrm.dot(vi)
             approach = nrm.dot(self.v_prev[i])
-            if -approach > t.bounce_threshold[None]:
-                vn = nrm.dot(vi)
+            if skin:
+                approach = vn
+            if -approach > t.bounce_threshold[None] or skin:
                 target = -t.restitution[None] * approach
+                if -approach <= t.bounce_threshold[None]:
+                    target = 0.0
                 if target > vn:
                     dvn = target - vn
                     vt = vi - vn * nrm

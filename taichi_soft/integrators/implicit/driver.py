@@ -436,7 +436,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
             vi = (self.u[i] - self.u_base[i]) / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
-                delta = self._bounce_split(i, self._bounce(i, vi))
+                delta = self._bounce_split(i, self._bounce(i, vi, x[i]))
             if ti.static(self._has_pairs()):
                 delta += self.pairs.dv[i]
             self.v_new[i] = vi
