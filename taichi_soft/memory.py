@@ -89,11 +89,11 @@ _GATHER = _MODEL + _STATE  # + the padded rows (rows.py), counted by rows_bytes
 _PING_PONG = FieldCounts(6, 0, 0, 0)  # one-stage methods with gathered forces: second x, v
 _RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
 # Implicit solvers (no force-pass buffers), per particle: the objective's 9 vectors (with the
-# displacements u, u_trial the solve iterates on) and friction block, contact normals, multiplier,
-# end-of-step velocities (49 reals), the PCG's 4 vectors (12), restitution's prescribed change,
+# displacements u, u_trial the solve iterates on) and friction block, contact normals, multiplier
+# and its end-of-step value (the next step's warm start), end-of-step velocities (50 reals), the PCG's 4 vectors (12), restitution's prescribed change,
 # right-hand side and response (9), the scheme's base displacement and the last step's end state
 # (9), the active-set flags (3 ints); per spring: damper direction and gradient (6 reals).
-_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(79, 3, 6, 0)
+_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(80, 3, 6, 0)
 _IMPLICIT_EULER = _IMPLICIT + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
 _FAST_MASS_SPRING = _IMPLICIT + FieldCounts(1, 0, 0, 0)  # diagonal of M + L (L-BFGS pairs: _lbfgs_reals)
 FIELDS = {

@@ -651,7 +651,7 @@ def write_report(out_dir: Path, command: str, acc: dict | None, stab: dict | Non
     if acc:
         parts.append(accuracy_markdown(acc))
     if prec:
-        from .precision import markdown as precision_markdown
+        from .verdict import markdown as precision_markdown
 
         parts.append(precision_markdown(prec))
     if stab:

@@ -62,8 +62,9 @@ LS_FAILED = 20  # 1: an iteration's line search failed before the step converged
 N_CTL = 21
 
 # acc: f64 sums over steps since the last stats() call
-A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE, A_LB_RESTARTS, A_FAILED, A_FAILED_RES, A_BDF2 = range(12)
-N_ACC = 12
+A_STEPS, A_OUTER, A_CG, A_LS, A_RES, A_UPDATES, A_CLAMPED, A_BOUNCE, A_LB_RESTARTS, A_FAILED, A_FAILED_RES, A_BDF2, \
+    A_UNCONVERGED = range(13)
+N_ACC = 13
 
 START_HALVINGS = 3  # most halvings of the feasible start fraction before starting at x_n
 RES_HISTORY = 64  # residuals of the last step's gradient evaluations kept for inspection
