@@ -13,8 +13,8 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from .bodies import BodySpec
 from .errors import UserError
-from .model import BodySpec
 from .paths import PACKAGE_DIR, ROOT
 from .terrain import CONTACT_DEFAULTS
 from .terrain import DEFAULTS as TERRAIN_DEFAULTS
@@ -30,7 +30,7 @@ def _scenes_dir() -> Path:
 SCENES_DIR = _scenes_dir()
 
 SIM_DEFAULTS = {"integrator": "semi_implicit_euler", "dt": 0.001, "duration": 5.0, "gravity": [0.0, -9.8, 0.0]}
-# Body defaults: the fields of model.BodySpec (their one home) in the scene's layout.
+# Body defaults: the fields of bodies.BodySpec (their one home) in the scene's layout.
 _SPEC = BodySpec()
 SPRING_DEFAULT = {"k": _SPEC.stretch[0], "damping": _SPEC.stretch[1]}
 BODY_DEFAULTS = {
