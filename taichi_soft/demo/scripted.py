@@ -574,7 +574,7 @@ def soak(s: Session, minutes: float, seed: int = 0) -> dict:
 
 def main(argv=None) -> int:
     from ..runtime import init
-    from ..scene import parse_resolution
+    from ..scene_validation import parse_resolution
     from .app import DemoApp
     from .controller import DemoController
     from .display import open_demo_window
