@@ -137,7 +137,7 @@ def test_bench_report_quick_writes_every_file(cli, tmp_path):
 def test_implicit_wins_from_the_first_stiffness_it_keeps_winning():
     """The stability report's verdict: implicit wins from the smallest stiffness at which it is at
     least WIN_MARGIN faster and stays so at every larger one."""
-    from taichi_soft.bench.report import WIN_MARGIN, implicit_wins_markdown
+    from taichi_soft.bench.report_markdown import WIN_MARGIN, implicit_wins_markdown
 
     def rows(explicit_walls):
         out = []
