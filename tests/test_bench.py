@@ -89,7 +89,7 @@ def test_numpy_and_warp_references_agree_with_engine(precision):
 def test_yardstick_reference_agrees_with_engine():
     """The plain-Taichi yardstick row of the speed study takes the engine's steps (f64 rounding)."""
     from taichi_soft.bench.references import YardstickStepper
-    from taichi_soft.bench.speed import REFERENCE_SCENE
+    from taichi_soft.bench.speed_worker import REFERENCE_SCENE
     from taichi_soft.scene import load_scene
     from taichi_soft.simulation import Simulation
 

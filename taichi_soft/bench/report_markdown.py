@@ -186,7 +186,7 @@ GOALS = (  # issues 12 and 25: (label, numerator row, denominator row, goal rati
 
 
 def equal_settings_markdown(rows: list[dict], load) -> list[str]:
-    from .speed import find_row
+    from .equal_settings import find_row
 
     out = ["### Equal settings, interleaved", "",
            "Semi-implicit Euler on the default cube without terrain, started stretched (springs and dampers all "

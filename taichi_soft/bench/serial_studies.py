@@ -32,7 +32,8 @@ def speed_configs() -> list[tuple[str, str]]:
 
 def run_speed_worker(quick: bool) -> dict:
     """Inside one (arch, precision) process: engine rows, numpy/Warp comparison, bandwidth, profile."""
-    from .speed import bytes_per_step, kernel_profile, measured_bandwidth, thread_overlap
+    from .machine_limits import bytes_per_step, measured_bandwidth, thread_overlap
+    from .speed import kernel_profile
 
     from .. import runtime
 
@@ -71,7 +72,7 @@ def run_speed(quick: bool, progress=None) -> dict:
     """One subprocess per (arch, precision) configuration (Taichi initialises once per process),
     fast math on (the command line's default); then the equal-settings comparison, interleaved."""
     from ..runtime import available_archs
-    from .speed import equal_settings, equal_settings_specs, quick_specs
+    from .equal_settings import equal_settings, equal_settings_specs, quick_specs
 
     results, interrupted = [], False
     configs = speed_configs()
