@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .app import DRAW_KEYS
+from .panel import DRAW_KEYS
 from .driver import CAMERA_KEYS, Session, run_checks
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..render.camera import project
 from ..render.window import window_rgb
-from .app import PANEL_X
+from .panel import PANEL_X
 
 CAMERA_KEYS = ("w", "a", "s", "d", "q", "e")
 

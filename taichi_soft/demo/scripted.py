@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from .app import DRAW_KEYS
+from .panel import DRAW_KEYS
 from .control_checks import check_every_control, escape_check
 from .driver import CAMERA_KEYS, Session
 from .hand_checks import check_hands
