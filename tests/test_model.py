@@ -37,7 +37,7 @@ def _first_principles_springs(n):
 def _previous_builder_springs(n):
     """The numpy builder this project had before the device one (same offsets, same order).
     Like the rest of this comparison it spells out the group and adjacency encodings itself, so
-    that a change to model.py's encodings shows up here."""
+    that a change to spring_codes.py's encodings shows up here."""
     offsets = {STRETCH: [(1, 0, 0), (0, 1, 0), (0, 0, 1)],
                SHEAR: [(1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1),
                        (1, 1, 1), (1, 1, -1), (1, -1, 1), (1, -1, -1)],

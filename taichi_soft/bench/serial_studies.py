@@ -1,6 +1,7 @@
 """The serial studies: speed (one subprocess per (arch, precision), then the equal-settings
-comparison, ``bench/speed.py``) and peak memory (``bench/memory.py``), with the writers of their
-files. They always run one configuration at a time: their measurements need a quiet machine.
+comparison: ``speed``, ``equal_settings``) and peak memory (``bench/memory.py``), with the writers
+of their files. They always run one configuration at a time: their measurements need a quiet
+machine.
 """
 from __future__ import annotations
 
