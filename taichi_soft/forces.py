@@ -18,7 +18,7 @@ Damper on particle a (seed):  f_a = -kd ((v_a - v_b) . l) l
 
 import taichi as ti
 
-from .model import end_b_spring
+from .spring_codes import end_b_spring
 from .rows import SpringRows
 
 # Added to a spring's length before dividing by it: a zero-length spring then has direction 0

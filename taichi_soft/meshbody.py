@@ -308,7 +308,7 @@ def mesh_lattice(path, n: int, size: float | None = None, scale: float | None = 
 
 
 def spec_lattice(spec, key: str = "mesh") -> MeshLattice:
-    """``mesh_lattice`` of a mesh ``model.BodySpec`` (its ``mesh``, ``n`` and ``scale`` or ``size``)."""
+    """``mesh_lattice`` of a mesh ``bodies.BodySpec`` (its ``mesh``, ``n`` and ``scale`` or ``size``)."""
     if spec.scale is not None:
         return mesh_lattice(spec.mesh, spec.n, scale=spec.scale, key=key)
     return mesh_lattice(spec.mesh, spec.n, size=spec.size, key=key)

@@ -1,205 +1,31 @@
-"""Builder -> Model -> State: the static description of the bodies and their changing state.
+"""Builder -> Model -> State: the static description of the bodies on the device.
 
-``ModelBuilder`` collects bodies on the numpy side; ``finalize()`` makes a ``Model`` of Taichi
-fields, writing the lattice springs on the device (no host copies of the per-spring arrays);
-their adjacency is built, also on the device, only for the integrators that gather over it
-(``ensure_adjacency``); ``model.state()`` allocates a ``State`` (positions and velocities).
-Everything a user may tune while a run is going (stiffness, damping, gravity) lives in fields,
-so changing it takes effect on the next step without recompiling a kernel.
+``builder.ModelBuilder`` collects bodies (``bodies.BodySpec``) and ``finalize()`` makes a ``Model``
+of Taichi fields; the springs' adjacency is built, also on the device, only for the integrators
+that gather over it (``ensure_adjacency``); ``model.state()`` allocates a ``state.State``
+(positions and velocities). Everything a user may tune while a run is going (stiffness, damping,
+gravity) lives in fields, so changing it takes effect on the next step without recompiling a
+kernel; the setters tell the model's listeners what they changed (the ``CHANGED_*`` bits).
 
-This module is the one home of two encodings every spring kernel relies on:
-
-* spring group ``g = body * 3 + kind`` (kind: stretch 0, shear 1, bend 2), the index into
-  ``group_k`` / ``group_kd``: ``spring_group``, ``group_body``, ``group_kind``;
-* the signed spring id in ``adj_spring``: ``s`` where the particle is end a of spring s, ``-s - 1``
-  where it is end b: ``end_a_code``, ``end_b_code``, ``is_end_a``, ``code_spring`` and (for
-  entries known to be end b, branch-free) ``end_b_spring``.
-
-They are ``ti.pyfunc``: callable from Python and from kernels alike.
+The spring-group and adjacency encodings live in ``spring_codes`` (imported here too, by their
+old path, for the modules that still take them from ``model``).
 """
 
 import weakref
-from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
 
-from . import lattice, meshbody, slabs
+from . import slabs
+from .bodies import BodyInfo
 from .lattice import SPRING_KINDS
+from .spring_codes import (N_KINDS, code_spring, end_a_code, end_b_code, end_b_spring, group_kind, is_end_a,
+                           spring_group)
+from .state import State
 
-N_KINDS = len(SPRING_KINDS)  # spring groups per body
 # What a ``Model`` setter changed (bits of the flags given to ``notify_model_changed``).
 CHANGED_SPRINGS = 1  # stiffnesses or damper coefficients
 CHANGED_MASSES = 2  # particle masses, pins included
-
-
-# -- the two encodings (one home; see the module docstring) ---------------------------------------
-@ti.pyfunc
-def spring_group(body, kind):
-    """Group index of spring ``kind`` (0 stretch, 1 shear, 2 bend) of body ``body``."""
-    return body * N_KINDS + kind
-
-
-@ti.pyfunc
-def group_body(group):
-    """Body index of a spring group (works elementwise on numpy integer arrays)."""
-    return group // N_KINDS
-
-
-@ti.pyfunc
-def group_kind(group):
-    """Spring kind (0 stretch, 1 shear, 2 bend) of a group (works elementwise on numpy arrays)."""
-    return group % N_KINDS
-
-
-@ti.pyfunc
-def end_a_code(s):
-    """``adj_spring`` entry of spring s seen from its end a."""
-    return s
-
-
-@ti.pyfunc
-def end_b_code(s):
-    """``adj_spring`` entry of spring s seen from its end b (negative)."""
-    return -s - 1
-
-
-@ti.pyfunc
-def is_end_a(code):
-    """True where an ``adj_spring`` entry belongs to the spring's end a."""
-    return code >= 0
-
-
-@ti.pyfunc
-def end_b_spring(code):
-    """Spring id of an ``adj_spring`` entry known to be an end-b one (no branch)."""
-    return -code - 1
-
-
-@ti.pyfunc
-def code_spring(code):
-    """Spring id of any ``adj_spring`` entry (scalars; numpy: ``np.maximum(c, -c - 1)``)."""
-    return max(code, -code - 1)
-
-
-@dataclass
-class BodySpec:
-    """One soft body, as a scene describes it. Lengths in m, masses in kg, angles in degrees.
-
-    ``shape = "cube"``: an n^3 lattice of edge ``size``. ``shape = "mesh"``: the lattice clipped
-    to the closed triangle mesh in the file ``mesh`` (``meshbody``), n points along its longest
-    side, which is ``size`` long, or the mesh scaled by ``scale`` metres per unit when given.
-    """
-
-    n: int = 10
-    size: float = 4.0
-    shape: str = "cube"
-    mesh: str | None = None
-    scale: float | None = None
-    particle_mass: float = 1.0
-    center: tuple = (0.0, 9.0, 0.0)
-    rotation_axis: tuple = (1.0, 0.0, 1.0)
-    rotation_degrees: float = 0.0
-    velocity: tuple = (0.0, 0.0, 0.0)
-    angular_velocity: tuple = (0.0, 0.0, 0.0)
-    # Initial deformation: the start shape is the rest shape scaled per body axis (1 = at rest).
-    initial_stretch: tuple = (1.0, 1.0, 1.0)
-    # (stiffness [N/m], damper coefficient [N s/m]) per spring kind
-    stretch: tuple = (2000.0, 60.0)
-    shear: tuple = (2000.0, 60.0)
-    bend: tuple = (2000.0, 60.0)
-
-
-@dataclass
-class BodyInfo:
-    """Where a finalized body's particles, springs and surface live in the model's arrays.
-
-    A cube's ``surface`` is its lattice's boundary. A mesh body's ``mesh`` holds its
-    ``meshbody.MeshLattice`` (the input surface embedded in the lattice: what is drawn), and its
-    ``surface`` is that mesh in particle terms (``meshbody.particle_surface``: what the demo picks on).
-    """
-
-    particles: slice
-    springs: slice
-    surface: np.ndarray  # [n_tris, 3] global particle indices, outward winding
-    spec: BodySpec
-    mesh: object = None
-
-
-class ModelBuilder:
-    """Collects bodies on the host; ``finalize()`` makes the device ``Model``."""
-
-    def __init__(self, gravity=(0.0, -9.8, 0.0)):
-        self.gravity = tuple(float(g) for g in gravity)
-        self.specs: list[BodySpec] = []
-
-    def add_cube(self, spec: BodySpec) -> int:
-        """Add a soft body (a cube, or a mesh body when ``spec.shape == "mesh"``); returns its index."""
-        self.specs.append(spec)
-        return len(self.specs) - 1
-
-    def finalize(self) -> "Model":
-        """The device ``Model``. Host memory: x0, v0 and masses (56 bytes per particle) kept,
-        one body's lattice (24 bytes per particle) as a temporary; a cube's springs are made on
-        the device, a mesh body's uploaded from its (cached) ``MeshLattice``."""
-        meshes = [meshbody.spec_lattice(spec, f"body.{b}.mesh") if spec.shape == "mesh" else None
-                  for b, spec in enumerate(self.specs)]
-        n_particles = sum(m.n_particles if m else spec.n ** 3 for spec, m in zip(self.specs, meshes))
-        x0 = np.empty((n_particles, 3))
-        v0 = np.empty((n_particles, 3))
-        mass = np.empty(n_particles)
-        bodies, group_k, group_kd, kind_counts = [], [], [], np.zeros(N_KINDS, np.int64)
-        p0 = s0 = 0
-        for spec, mesh in zip(self.specs, meshes):
-            rot = lattice.rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
-            pts = mesh.points.copy() if mesh else lattice.lattice_points(spec.n, spec.size)
-            pts *= np.asarray(spec.initial_stretch, dtype=np.float64)
-            sl = slice(p0, p0 + len(pts))
-            x, v = x0[sl], v0[sl]
-            np.matmul(pts, rot.T, out=x)  # start shape about the centre
-            del pts
-            w = np.asarray(spec.angular_velocity, dtype=np.float64)
-            # v = velocity + omega x r, written as r @ K^T with K the cross-product matrix of omega
-            cross = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-            np.matmul(x, cross.T, out=v)
-            v += np.asarray(spec.velocity, dtype=np.float64)
-            x += np.asarray(spec.center, dtype=np.float64)
-            mass[sl] = spec.particle_mass
-            for k, kd in (spec.stretch, spec.shear, spec.bend):
-                group_k.append(k)
-                group_kd.append(kd)
-            counts = mesh.spring_counts() if mesh else lattice.spring_counts(spec.n)
-            kind_counts += counts
-            surf = (meshbody.particle_surface(mesh) if mesh else lattice.surface_triangles(spec.n)) + p0
-            bodies.append(BodyInfo(sl, slice(s0, s0 + sum(counts)), surf, spec, mesh))
-            p0 += len(x)
-            s0 += sum(counts)
-        model = Model.__new__(Model)
-        model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies)
-        model._lattice = all(m is None for m in meshes)  # slab ranges by lattice arithmetic only for whole cubes
-        for b, info in enumerate(bodies):
-            spec = info.spec
-            if info.mesh is not None:
-                if info.mesh.n_springs:
-                    m = info.mesh
-                    _put_springs(model.spring_ends, model.spring_rest, model.spring_group, m.pairs,
-                                 m.rest.astype(model.real), m.kind.astype(np.int32), info.particles.start,
-                                 info.springs.start, spring_group(b, 0))
-                continue
-            lattice.fill_springs(model.spring_ends, model.spring_rest, model.spring_group, spec.n,
-                                 info.particles.start, info.springs.start, spring_group(b, 0),
-                                 spec.size / (spec.n - 1))
-        return model
-
-
-@ti.kernel
-def _put_springs(ends: ti.template(), rest: ti.template(), group: ti.template(), pairs: ti.types.ndarray(ndim=2),
-                 length: ti.types.ndarray(ndim=1), kind: ti.types.ndarray(ndim=1), p0: ti.i32, s0: ti.i32, g0: ti.i32):
-    """Write one body's springs given as host arrays (local particle indices) at ids s0, s0 + 1, ..."""
-    for s in range(pairs.shape[0]):
-        ends[s0 + s] = ti.Vector([p0 + pairs[s, 0], p0 + pairs[s, 1]])
-        rest[s0 + s] = ti.cast(length[s], float)
-        group[s0 + s] = g0 + kind[s]
 
 
 @ti.data_oriented
@@ -443,41 +269,3 @@ class Model:
         s = State(self.n_particles)
         s.set(self.x0_np, self.v0_np)
         return s
-
-
-@ti.data_oriented
-class State:
-    """Positions x [m] and velocities v [m/s] of all particles, shape [n_particles] vec3."""
-
-    def __init__(self, n_particles: int):
-        self.n_particles = n_particles
-        self.x = ti.Vector.field(3, float, n_particles)
-        self.v = ti.Vector.field(3, float, n_particles)
-
-    def set(self, x: np.ndarray, v: np.ndarray):
-        """Copy positions [m] and velocities [m/s], arrays [n_particles, 3], into the state.
-
-        One kernel (no host copy when the arrays are already in the run's precision).
-        """
-        real = np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
-        arrays = []
-        for name, a in (("x", x), ("v", v)):
-            a = np.ascontiguousarray(a, dtype=real)
-            if a.shape != (self.n_particles, 3):
-                raise ValueError(f"State.set: {name} has shape {a.shape}, expected ({self.n_particles}, 3)")
-            arrays.append(a)
-        self._set(*arrays)
-
-    @ti.kernel
-    def _set(self, x: ti.types.ndarray(ndim=2), v: ti.types.ndarray(ndim=2)):
-        for i in range(self.n_particles):
-            self.x[i] = ti.cast(ti.Vector([x[i, 0], x[i, 1], x[i, 2]]), float)
-            self.v[i] = ti.cast(ti.Vector([v[i, 0], v[i, 1], v[i, 2]]), float)
-
-    def numpy(self) -> tuple[np.ndarray, np.ndarray]:
-        """Copies of (x, v) as numpy arrays [n_particles, 3] in the run's precision."""
-        return self.x.to_numpy(), self.v.to_numpy()
-
-    def copy_from(self, other: "State"):
-        self.x.copy_from(other.x)
-        self.v.copy_from(other.v)

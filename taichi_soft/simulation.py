@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import runtime
+from .bodies import BodySpec
+from .builder import ModelBuilder
 from .collision import BodyContacts, body_radius
 from .errors import UserError
 from .lattice import SPRING_KINDS, rotation_matrix
@@ -19,7 +21,6 @@ from .forces import Diagnostics
 from .integrators import make_integrator
 from .integrators.implicit.health import assess
 from .integrators.linear_stability import divergence_hint
-from .model import BodySpec, ModelBuilder
 from .scene import Scene
 from .terrain import make_terrain
 

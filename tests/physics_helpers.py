@@ -2,9 +2,10 @@
 import numpy as np
 import taichi as ti
 
+from taichi_soft.bodies import BodySpec
+from taichi_soft.builder import ModelBuilder
 from taichi_soft.forces import ForceEvaluator
 from taichi_soft.integrators import make_integrator
-from taichi_soft.model import BodySpec, ModelBuilder
 from taichi_soft.terrain import CONTACT_DEFAULTS, make_terrain
 
 

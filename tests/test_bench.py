@@ -89,7 +89,7 @@ def test_numpy_and_warp_references_agree_with_engine(precision):
 def test_yardstick_reference_agrees_with_engine():
     """The plain-Taichi yardstick row of the speed study takes the engine's steps (f64 rounding)."""
     from taichi_soft.bench.references import YardstickStepper
-    from taichi_soft.bench.speed import REFERENCE_SCENE
+    from taichi_soft.bench.speed_worker import REFERENCE_SCENE
     from taichi_soft.scene import load_scene
     from taichi_soft.simulation import Simulation
 
@@ -137,7 +137,7 @@ def test_bench_report_quick_writes_every_file(cli, tmp_path):
 def test_implicit_wins_from_the_first_stiffness_it_keeps_winning():
     """The stability report's verdict: implicit wins from the smallest stiffness at which it is at
     least WIN_MARGIN faster and stays so at every larger one."""
-    from taichi_soft.bench.report import WIN_MARGIN, implicit_wins_markdown
+    from taichi_soft.bench.report_markdown import WIN_MARGIN, implicit_wins_markdown
 
     def rows(explicit_walls):
         out = []

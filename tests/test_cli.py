@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from taichi_soft.scene import apply_overrides, load_scene, parse_value
+from taichi_soft.scene import load_scene
+from taichi_soft.scene_overrides import apply_overrides, parse_value
 from taichi_soft.errors import UserError
 from taichi_soft.simulation import frame_steps
 

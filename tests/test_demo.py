@@ -188,7 +188,7 @@ def test_pause_keeps_the_plot_history_and_restart_pauses(fresh):
 
 
 def test_ladder_steps_in_physical_1_2_5_values():
-    from taichi_soft.demo.controller import ladder
+    from taichi_soft.demo.panel import ladder
 
     assert [ladder(1e-3, +1), ladder(1e-3, -1), ladder(2e-3, +1), ladder(5e-4, -1)] == [2e-3, 5e-4, 5e-3, 2e-4]
     assert [ladder(2000.0, +1), ladder(2000.0, -1), ladder(3000.0, +1), ladder(3000.0, -1)] == [5e3, 1e3, 5e3, 2e3]

@@ -101,7 +101,8 @@ def _check_slabs(pairs, first, ranges, n_particles):
 def test_scatter_slabs_of_one_parity_share_no_particle():
     """The parallel scatter's race freedom, on the springs in the model's own order: lattice
     bodies of several sizes (rotated: springs at every angle) in one model, and a random graph."""
-    from taichi_soft.model import BodySpec, ModelBuilder
+    from taichi_soft.bodies import BodySpec
+    from taichi_soft.builder import ModelBuilder
 
     builder = ModelBuilder()
     for k, n in enumerate((2, 3, 7, 8)):

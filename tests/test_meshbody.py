@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 import trimesh
 
+from taichi_soft.bodies import BodySpec
+from taichi_soft.builder import ModelBuilder
 from taichi_soft.errors import UserError
 from taichi_soft.meshbody import mesh_lattice
-from taichi_soft.model import BodySpec, ModelBuilder
 
 R_MAJOR, R_MINOR = 1.0, 0.4  # the test torus, mesh units; its axis is z
 

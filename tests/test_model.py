@@ -37,7 +37,7 @@ def _first_principles_springs(n):
 def _previous_builder_springs(n):
     """The numpy builder this project had before the device one (same offsets, same order).
     Like the rest of this comparison it spells out the group and adjacency encodings itself, so
-    that a change to model.py's encodings shows up here."""
+    that a change to spring_codes.py's encodings shows up here."""
     offsets = {STRETCH: [(1, 0, 0), (0, 1, 0), (0, 0, 1)],
                SHEAR: [(1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1),
                        (1, 1, 1), (1, 1, -1), (1, -1, 1), (1, -1, -1)],
@@ -68,7 +68,8 @@ def _previous_adjacency(pairs, rest, group, n_particles):
 
 def test_builder_matches_first_principles_and_previous_builder():
     """Bodies n = 2..6 in one model: springs, rest lengths, groups and adjacency, exactly."""
-    from taichi_soft.model import BodySpec, ModelBuilder
+    from taichi_soft.bodies import BodySpec
+    from taichi_soft.builder import ModelBuilder
 
     builder = ModelBuilder(gravity=(0.0, 0.0, 0.0))
     for n in _SIZES:
@@ -118,7 +119,7 @@ def test_adjacency_of_any_graph():
 
 
 def test_encodings_round_trip():
-    from taichi_soft import model as M
+    from taichi_soft import spring_codes as M
 
     for s in (0, 1, 17):
         assert M.is_end_a(M.end_a_code(s)) and not M.is_end_a(M.end_b_code(s))
@@ -134,7 +135,7 @@ def test_rest_lengths_match_lattice_spacing(degrees):
     n, size = 5, 2.0
     model, _ = build(n=n, size=size, rotation_axis=(1.0, 2.0, 0.5), rotation_degrees=degrees)
     h = size / (n - 1)
-    from taichi_soft.model import group_kind
+    from taichi_soft.spring_codes import group_kind
 
     kinds = group_kind(model.group_np)
     stretch_r = model.rest_np[kinds == STRETCH]

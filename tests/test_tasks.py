@@ -86,12 +86,12 @@ def test_sweep_gives_the_same_rows_on_1_or_2_processes_and_on_a_dask_local_clust
     """A quick stability sweep (one integrator: a terrain task and a stiffness task) three ways."""
     from distributed import LocalCluster
 
-    from taichi_soft.bench import report
+    from taichi_soft.bench import sweeps
     from taichi_soft.tasks import DaskExecutor
 
     def sweep(executor):
         try:
-            res = report.run_stability(True, executor, names=["semi_implicit_euler"])
+            res = sweeps.run_stability(True, executor, names=["semi_implicit_euler"])
         finally:
             executor.close()
         assert not res["failed"] and not res["interrupted"]

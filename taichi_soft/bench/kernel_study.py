@@ -105,7 +105,7 @@ def main(argv=None) -> int:
 
     from ..scene import load_scene
     from ..simulation import Simulation
-    from .speed import REFERENCE_SCENE
+    from .speed_worker import REFERENCE_SCENE
 
     def sim_for(forces):
         scene = load_scene("plane", [f"body.0.n={a.n}", *REFERENCE_SCENE])

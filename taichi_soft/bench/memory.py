@@ -19,7 +19,8 @@ import sys
 
 from .. import memory
 from ..paths import ROOT
-from ..scene import MAX_N, load_scene
+from ..scene import load_scene
+from ..scene_validation import MAX_N
 
 SIZES = (10, 20, 40, 80)
 # One integrator per family and precision (the explicit family's two ends, both implicit solvers).

@@ -39,7 +39,7 @@ def cmd_bench(args) -> int:
     from ..tasks import RETRIES, make_executor
 
     if args.study == "speed-worker":  # internal: one (arch, precision) per process, JSON on stdout
-        from ..bench.report import run_speed_worker
+        from ..bench.serial_studies import run_speed_worker
 
         runtime.init(args.arch, args.precision, fast_math=args.fast_math,
                      kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
@@ -71,35 +71,35 @@ def cmd_bench(args) -> int:
     # Before any work: an unreachable --scheduler is refused here, in a few seconds.
     executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
     out_dir.mkdir(parents=True, exist_ok=True)
-    from ..bench import report
+    from ..bench import report, serial_studies, sweeps
 
     start = time.perf_counter()
     acc = stab = speed = mem = prec = None
     files = []
     try:
         if args.study in ("accuracy", "report"):
-            acc = report.run_accuracy(args.quick, executor)
-            files += report.write_accuracy(acc, out_dir)
+            acc = sweeps.run_accuracy(args.quick, executor)
+            files += sweeps.write_accuracy(acc, out_dir)
         if args.study in ("precision", "report") and not (acc and acc["interrupted"]):
-            prec = report.run_precision(args.quick, executor)
-            files += report.write_precision(prec, out_dir)
+            prec = sweeps.run_precision(args.quick, executor)
+            files += sweeps.write_precision(prec, out_dir)
         if args.study in ("stability", "report") and not any(r and r["interrupted"] for r in (acc, prec)):
-            stab = report.run_stability(args.quick, executor)
-            files += report.write_stability(stab, out_dir)
+            stab = sweeps.run_stability(args.quick, executor)
+            files += sweeps.write_stability(stab, out_dir)
     finally:
         if executor is not None:
             executor.close()
     if args.study in ("speed", "report") and not any(r and r["interrupted"] for r in (acc, prec, stab)):
         runtime.init("cpu", "f64")  # speed_configs asks Taichi which backends this machine has
         bar = CountBar(1, "bench speed", unit="config")
-        speed = report.run_speed(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
+        speed = serial_studies.run_speed(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
         bar.close()
-        files += report.write_speed(speed, out_dir)
+        files += serial_studies.write_speed(speed, out_dir)
     if args.study in ("memory", "report") and not any(r and r["interrupted"] for r in (acc, prec, stab, speed)):
         bar = CountBar(1, "bench memory", unit="size")
-        mem = report.run_memory(args.quick, lambda done, total, what: bar.update(done, str(what)[:60], total=total))
+        mem = serial_studies.run_memory(args.quick, lambda done, total, what: bar.update(done, str(what)[:60], total=total))
         bar.close()
-        files += report.write_memory(mem, out_dir)
+        files += serial_studies.write_memory(mem, out_dir)
     command = "python main.py bench " + args.study + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
     name = "REPORT.md" if args.study == "report" else f"{args.study.upper()}.md"
     md = report.write_report(out_dir, command, acc, stab, speed, time.perf_counter() - start, mem, name, prec)
@@ -123,7 +123,7 @@ def _energy(args, out_dir) -> int:
 
     from .. import runtime
     from ..bench import energy, machine
-    from ..bench.report import write_csv, write_text
+    from ..bench.files import write_csv, write_text
     from ..progress import CountBar
 
     runtime.init("cpu", "f64")

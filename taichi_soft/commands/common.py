@@ -197,7 +197,7 @@ def render_options_from_args(args, scene):
 
 
 def resolution_arg(text):
-    from ..scene import parse_resolution
+    from ..scene_validation import parse_resolution
 
     try:
         return parse_resolution(text)

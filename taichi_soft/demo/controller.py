@@ -21,12 +21,14 @@ replays call for call, steps included (``step(n)`` is an input too).
 
 A step that diverges, or any error the engine raises while stepping, pauses the simulation and
 leaves a one-line ``message``; ``reset()`` clears it. The controller never raises from a step.
+
+This module holds the controller's construction, choices (integrator, terrain) and running; the
+live parameters and the hand are its mixins in ``live_controls``, its settings and energy history
+in ``controller_state``.
 """
 from __future__ import annotations
 
-import functools
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,96 +39,11 @@ from ..lattice import SPRING_KINDS, rotation_matrix
 from ..scene import load_scene
 from ..simulation import Simulation
 from ..terrain import KINDS as TERRAIN_KINDS
-
-HISTORY = 240  # energy samples kept for the HUD plot (one per frame that stepped: a few seconds)
-ENERGY_KEYS = ("kinetic_energy", "spring_energy", "gravity_energy", "total_energy")
-
-
-def recorded(method):
-    """Mark a ``DemoController`` method as an input: its outermost calls go to ``recorder``."""
-
-    @functools.wraps(method)
-    def wrapper(self, *args, **kwargs):
-        outer = self._depth == 0
-        self._depth += 1
-        try:
-            result = method(self, *args, **kwargs)
-        finally:
-            self._depth -= 1
-        if outer and self.recorder is not None:
-            self.recorder.input(method.__name__, list(args), kwargs)
-        return result
-
-    wrapper.recorded = True
-    return wrapper
+from .controller_state import ENERGY_KEYS, EnergyHistory, Settings
+from .live_controls import HandControls, LiveParameters, recorded
 
 
-def ladder(value: float, direction: int) -> float:
-    """The next value above (``direction`` = +1) or below (-1) ``value`` on the 1-2-5 ladder
-    (..., 0.5, 1, 2, 5, 10, ...): how the demo's dt and stiffness buttons step, in physical units."""
-    exponent = math.floor(math.log10(value))
-    steps = [m * 10.0**e for e in (exponent - 1, exponent, exponent + 1) for m in (1.0, 2.0, 5.0)]
-    steps = [float(f"{v:.3g}") for v in steps]
-    if direction > 0:
-        return min(v for v in steps if v > value * (1 + 1e-9))
-    return max(v for v in steps if v < value * (1 - 1e-9))
-
-
-@dataclass
-class Settings:
-    """The values the controls show and set. Units: SI (s, N/m, N s/m, kg, m, degrees, m/s^2)."""
-
-    integrator: str
-    terrain: str
-    dt: float
-    stiffness: dict  # spring kind -> k [N/m] (applied to every body)
-    damping: float  # damper coefficient [N s/m] of every spring kind and body
-    restitution: float  # [0, 1]
-    friction: float  # Coulomb coefficient >= 0
-    particle_mass: float  # [kg], every particle
-    height: float  # height [m] of the first body's centre at reset
-    rotation: float  # first body's rotation [degrees] about its scene axis at reset
-    gravity: float  # magnitude [m/s^2] along the scene's gravity direction
-    paused: bool = False
-    slow_motion: float = 1.0  # simulated seconds per wall-clock second wanted (1 = real time)
-    duration: float | None = None  # [s] simulated time after which the demo stops (None: runs on)
-    grab_stiffness: float = 1000.0  # [N/m] of the spring pulling a grabbed particle to the cursor
-    poke_speed: float = 3.0  # [m/s] velocity a poke adds to the poked particle
-
-
-@dataclass
-class EnergyHistory:
-    """Recent energy samples [J] for the HUD plot: ``t`` [s] and one list per ``ENERGY_KEYS``."""
-
-    t: list = field(default_factory=list)
-    values: dict = field(default_factory=lambda: {k: [] for k in ENERGY_KEYS})
-    # The energies of the first sample since the last clear (the start, t = 0): the HUD shows
-    # changes from them, which do not depend on where gravity's zero is.
-    start: dict | None = None
-
-    def add(self, time: float, measures: dict):
-        """Append a sample at simulated ``time`` [s]; a sample at the time already last is not
-        added again (a paused demo keeps the history it had when paused)."""
-        if self.t and self.t[-1] == time:
-            return
-        if self.start is None:
-            self.start = {k: measures[k] for k in ENERGY_KEYS}
-        self.t.append(time)
-        for k in ENERGY_KEYS:
-            self.values[k].append(measures[k])
-        if len(self.t) > HISTORY:
-            del self.t[0]
-            for k in ENERGY_KEYS:
-                del self.values[k][0]
-
-    def clear(self):
-        self.start = None
-        self.t.clear()
-        for k in ENERGY_KEYS:
-            self.values[k].clear()
-
-
-class DemoController:
+class DemoController(LiveParameters, HandControls):
     """The simulation behind the demo window and every control applied to it.
 
     ``scene`` is a scene name or path, ``overrides`` ``--set`` style assignments; ``integrator``
@@ -235,66 +152,6 @@ class DemoController:
         for i in pins:  # the same particles, pinned where the new start puts them
             self.toggle_pin(i)
 
-    # -- live parameters --------------------------------------------------------------------
-    @recorded
-    def set_dt(self, dt: float):
-        """Time step [s] from the next step on."""
-        self.settings.dt = float(dt)
-        self.sim.set_dt(dt)
-
-    @recorded
-    def set_stiffness(self, kind: str, k: float):
-        """Stiffness [N/m] of spring ``kind`` in every body."""
-        self.settings.stiffness[kind] = float(k)
-        for b in range(len(self.sim.model.bodies)):
-            self.sim.model.set_spring_params(b, kind, k=float(k))
-
-    @recorded
-    def set_damping(self, damping: float):
-        """Damper coefficient [N s/m] of every spring kind in every body."""
-        self.settings.damping = float(damping)
-        for b in range(len(self.sim.model.bodies)):
-            for kind in SPRING_KINDS:
-                self.sim.model.set_spring_params(b, kind, damping=float(damping))
-
-    @recorded
-    def set_contact(self, restitution: float | None = None, friction: float | None = None):
-        """Restitution [0, 1] and Coulomb friction coefficient of the terrain contact."""
-        if restitution is not None:
-            self.settings.restitution = float(restitution)
-        if friction is not None:
-            self.settings.friction = float(friction)
-        self.sim.terrain.set_contact(restitution=restitution, friction=friction)
-
-    @recorded
-    def set_particle_mass(self, mass: float):
-        """Mass [kg] of every particle (pinned particles, inverse mass 0, stay pinned)."""
-        self.settings.particle_mass = float(mass)
-        if self._mass_applied == mass:
-            return
-        self.sim.model.set_particle_mass(float(mass))
-        self._mass_applied = mass
-        self.grab.set_stiffness(self.settings.grab_stiffness)  # its damper follows the mass
-
-    @recorded
-    def set_gravity(self, magnitude: float):
-        """Gravity [m/s^2] along the scene's direction (straight down for a weightless scene)."""
-        self.settings.gravity = float(magnitude)
-        self.sim.model.set_gravity(self._g_dir * float(magnitude))
-
-    @recorded
-    def set_pose(self, height: float | None = None, rotation: float | None = None):
-        """Drop height [m] and rotation [degrees] of the first body; take effect at ``reset()``."""
-        if height is not None:
-            self.settings.height = float(height)
-        if rotation is not None:
-            self.settings.rotation = float(rotation)
-
-    @recorded
-    def set_slow_motion(self, factor: float):
-        """Simulated seconds per wall-clock second wanted, in (0, 1]."""
-        self.settings.slow_motion = min(max(float(factor), 1e-3), 1.0)
-
     # -- running ----------------------------------------------------------------------------
     @recorded
     def toggle_pause(self):
@@ -373,62 +230,6 @@ class DemoController:
         self.settings.paused = True
         self.step(1)
 
-    # -- the hand ---------------------------------------------------------------------------
-    @recorded
-    def set_grab_stiffness(self, k: float):
-        """Stiffness [N/m] of the spring that pulls a grabbed particle toward the cursor (its damper
-        critically damps the particle alone on it, ``Grab.set_stiffness``)."""
-        self.settings.grab_stiffness = float(k)
-        self.grab.set_stiffness(float(k))
-
-    @recorded
-    def set_poke_speed(self, speed: float):
-        """Speed [m/s] a poke adds to the poked particle."""
-        self.settings.poke_speed = float(speed)
-
-    @recorded
-    def grab_particle(self, i: int, target):
-        """Pull particle ``i`` toward ``target`` [m] from the next step on (a pinned one stays put)."""
-        self.grab.hold(int(i), target)
-
-    @recorded
-    def drag(self, target):
-        """Move the grabbed particle's target [m]."""
-        self.grab.move(target)
-
-    @recorded
-    def release(self):
-        self.grab.release()
-
-    @recorded
-    def poke(self, i: int, direction):
-        """Add ``poke_speed`` [m/s] along ``direction`` (any length) to particle ``i``'s velocity."""
-        d = np.asarray(direction, dtype=np.float64)
-        norm = float(np.linalg.norm(d))
-        if norm == 0 or int(i) in self.pins or self.message:
-            return
-        v = self.sim.state.v
-        v[int(i)] = tuple(np.asarray(v[int(i)].to_numpy(), dtype=np.float64) + self.settings.poke_speed * d / norm)
-
-    @recorded
-    def toggle_pin(self, i: int):
-        """Pin particle ``i`` where it is (inverse mass 0, at rest), or unpin it if pinned."""
-        i = int(i)
-        model = self.sim.model
-        if i in self.pins:
-            self.pins.discard(i)
-            model.set_masses([i], self.settings.particle_mass)
-        else:
-            self.pins.add(i)
-            model.set_masses([i], 0.0)
-            self.sim.state.v[i] = (0.0, 0.0, 0.0)
-
-    @recorded
-    def clear_pins(self):
-        """Unpin every pinned particle (they fall with the rest)."""
-        if self.pins:
-            self.sim.model.set_masses(sorted(self.pins), self.settings.particle_mass)
-            self.pins.clear()
 
     def _stop(self, message: str):
         self.message = message

@@ -11,7 +11,7 @@ import numpy as np
 
 from .canvas2d import Batch2D, text_size
 from ..render.overlay import ENERGY_LABEL
-from .controller import ENERGY_KEYS
+from .controller_state import ENERGY_KEYS
 
 # Plot colours (linear RGB): kinetic, spring, gravity, total.
 ENERGY_COLORS = {"kinetic_energy": (1.0, 0.55, 0.15), "spring_energy": (0.35, 0.75, 1.0),

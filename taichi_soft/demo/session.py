@@ -42,7 +42,7 @@ class SessionRecorder:
         self._draw = None
 
     def input(self, name: str, args: list, kwargs: dict):
-        """One controller input (called by ``controller.recorded``)."""
+        """One controller input (called by ``live_controls.recorded``)."""
         self._ops.append([name, _plain(args), _plain(kwargs)])
 
     def end_frame(self, app):

@@ -173,7 +173,8 @@ def _pipelines(sim, kind, width, height, tmp, rounds: int = 3, frames: int = 10)
 def main(argv=None) -> int:
     from ..errors import UserError
     from ..runtime import init
-    from ..scene import load_scene, parse_resolution
+    from ..scene import load_scene
+    from ..scene_validation import parse_resolution
     from ..simulation import Simulation
     from . import overlay
     from .camera import scene_camera

@@ -14,7 +14,7 @@ import numpy as np
 import taichi as ti
 
 from ..lattice import SPRING_KINDS
-from ..model import group_kind
+from ..spring_codes import group_kind
 from .camera import CameraSpec
 from .embedded import body_surface
 from .lighting import LightRig, apply_rig_to_ggui, light_rig, shade
