@@ -208,7 +208,8 @@ def test_bench_precision_quick_writes_files_and_its_verdict(cli, tmp_path):
     out = tmp_path / "prec"
     r = cli("bench", "precision", "--quick", "--workers", "2", "--out", out, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
-    for name in ("PRECISION.md", "precision.csv", "precision_references.csv", "precision_wall.png", "precision_evals.png"):
+    for name in ("PRECISION.md", "precision.csv", "precision_references.csv", "precision_wall.png", "precision_evals.png",
+                 "plausibility.csv"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     rows = list(csv.DictReader(open(out / "precision.csv")))
     for row in rows:
@@ -237,6 +238,17 @@ def test_bench_precision_quick_writes_files_and_its_verdict(cli, tmp_path):
     for case in precision.CASES:
         w = verdict.wins_from(verdict.verdict(rows), case, 0.2)
         assert (f"20 cm: x{w:g}" if w is not None else "20 cm: never") in md
+    # Plausibility at frame steps: a soft cube (x1) never gains energy, never ends a step inside
+    # the plane, and a push slides it as far as Coulomb friction allows a block, v^2 / (2 mu g).
+    assert "## Plausibility at frame steps" in md
+    plaus = list(csv.DictReader(open(out / "plausibility.csv")))
+    assert {(r["integrator"], float(r["stiffness_scale"]), round(1 / float(r["dt"]))) for r in plaus} == \
+        {(m, s, f) for m in precision.QUICK_METHODS if m == "fast_mass_spring" for s in precision.QUICK_STIFFNESS
+         for f in (30, 60)}
+    for r in plaus:
+        assert r["diverged"] == "False" and float(r["energy_rise"]) <= 1e-9 and float(r["deepest_inside_m"]) < 1e-6, r
+        if float(r["stiffness_scale"]) == 1.0:
+            assert float(r["slide_m"]) == pytest.approx(float(r["slide_expected_m"]), rel=0.1), r
 
 
 def test_bench_precision_bad_workers_is_refused_before_any_work(cli, tmp_path):

@@ -69,7 +69,7 @@ def task(name: str, scales, refs: dict, quick: bool) -> list[dict]:
     (scene, sets, t_end), = P.case_runs("flat", quick)
     push_scene, push_sets, push_end = push_run(quick)
     rows = []
-    for setting in SETTINGS:
+    for setting in (P.QUICK_TOLERANCES if quick else SETTINGS):
         options = P.TOLERANCES[setting].get(name, {})
         drop, push = P.build(scene, sets, name, options), P.build(push_scene, push_sets, name, options)
         bases = [s.model.group_k.to_numpy().copy() for s in (drop, push)]

@@ -231,8 +231,8 @@ def spring_passes(name: str, run: dict, n_springs: int) -> float:
 
 # -- tasks ---------------------------------------------------------------------------------------------
 def _task_runtime():
-    """Inside a task's fresh process: the runtime of every study (CPU, f64), as ``report._task_runtime``
-    (not imported from there: report imports this module)."""
+    """Inside a task's fresh process: the runtime of every study (CPU, f64), as ``sweeps._task_runtime``
+    (not imported from there: sweeps imports this module)."""
     from .. import runtime
 
     runtime.init("cpu", "f64")

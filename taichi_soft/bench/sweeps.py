@@ -106,7 +106,7 @@ def run_precision(quick: bool, executor=None, scales=None) -> dict:
     """References first (one task per case x stiffness), then one task per case x method x tolerance
     over every stiffness (one compile each)."""
     from ..tasks import Task
-    from . import precision
+    from . import plausibility, precision
 
     scales = list(scales or (precision.QUICK_STIFFNESS if quick else precision.STIFFNESS))
     out = {"rows": [], "references": [], "interrupted": False, "failed": {}, "quick": quick}
@@ -131,9 +131,18 @@ def run_precision(quick: bool, executor=None, scales=None) -> dict:
                 tasks.append(Task(f"precision/{case}/{name}/{tol}", "taichi_soft.bench.precision:method_task",
                                   {"case": case, "name": name, "tolerance": tol if cls.implicit else "default",
                                    "scales": scales, "refs": case_refs, "quick": quick}))
+    # plausibility at frame steps (plausibility.py): one task per implicit solver, on the flat case's references
+    flat_refs = {k: v for k, v in by_key.items() if k.startswith("flat/")}
+    if len(flat_refs) == len(scales):
+        for name in plausibility.SOLVERS:
+            if quick and name not in precision.QUICK_METHODS:
+                continue
+            tasks.append(Task(f"plausibility/{name}", "taichi_soft.bench.plausibility:task",
+                              {"name": name, "scales": scales, "refs": flat_refs, "quick": quick}))
     rows, out["interrupted"], failed = _sweep(tasks, executor, "precision")
     out["failed"].update(failed)
-    out["rows"] = rows
+    out["rows"] = [r for r in rows if "settings" not in r]
+    out["plausibility"] = [r for r in rows if "settings" in r]
     return out
 
 
@@ -147,7 +156,8 @@ def write_precision(result: dict, out_dir: Path) -> list[str]:
                            "wall s per simulated s")
     plots.precision_fronts(result["rows"], out_dir / "precision_evals.png", "spring_passes_per_sim_s",
                            "spring passes per simulated s")
-    return ["precision.csv", "precision_references.csv", "precision_wall.png", "precision_evals.png"]
+    write_csv(result.get("plausibility", []), out_dir / "plausibility.csv")
+    return ["precision.csv", "precision_references.csv", "precision_wall.png", "precision_evals.png", "plausibility.csv"]
 
 
 # -- stability ---------------------------------------------------------------------------------------------

@@ -111,6 +111,10 @@ def markdown(result: dict, heading: str = "## Work-precision at equal error") ->
                 w = wins_from(v, case, e)
                 parts.append(f"{e * 100:g} cm: " + (f"x{w:g}" if w is not None else "never (up to the largest stiffness)"))
             out.append(f"* {case}: " + "; ".join(parts))
+    if result.get("plausibility"):
+        from .plausibility import markdown as plausibility_markdown
+
+        out += [""] + plausibility_markdown(result["plausibility"])
     return "\n".join(out) + "\n"
 
 
