@@ -296,7 +296,11 @@ PENETRATION_TOL = 1e-9
 def test_stable_and_comes_to_rest_at_frame_step(terrain, name, stiffness):
     sim = _sim(terrain, name, stiffness)
     kinetic = []
-    min_d, speeds = _run_checked(sim, 7.0 if terrain == "plane" else 12.0, kinetic)
+    # The plane's 8 s: at x10 the default cube lands on a corner and tumbles until about 7.5 s
+    # (since the friction warm start is the step's last normal force, not an early iterate's
+    # over-count that stopped it sooner); the explicit reference (semi-implicit Euler, 0.5 ms) is
+    # still tumbling at 7 s with 996 J.
+    min_d, speeds = _run_checked(sim, 8.0 if terrain == "plane" else 12.0, kinetic)
     assert min_d > -PENETRATION_TOL
     assert max(speeds) > 5.0  # it did fall and land
     # Brought to rest: over the last 0.5 s the kinetic energy stays below 0.1 % of its peak (the

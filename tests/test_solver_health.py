@@ -55,3 +55,34 @@ def test_a_clamp_on_many_steps_is_reported():
                                      "they began with and their velocities were scaled down)"]
     assert assess({"steps": 100, "failed_solve_steps": 0, "failed_solve_max_residual_m_s2": 0.0,
                    "energy_clamped_steps": 1}) == ([], False)
+
+
+def test_unconverged_steps_are_counted_and_said_when_they_are_most():
+    """A stiff cube (x100) pushed across the plane at 3 m/s, 1/30 s: fast_mass_spring's local/global
+    iterations stop at their cap far from the solution on every step (and the cube stops), and
+    the counter says so; Newton with a cap that lets it converge counts none, and the cube loses
+    exactly Coulomb's mu g h per step. ``assess`` speaks when unconverged steps are most."""
+    from taichi_soft.bench import precision as P
+    from taichi_soft.bench.plausibility import PUSH_SPEED, push_run
+    from taichi_soft.integrators.implicit.health import UNCONVERGED_WARN_SHARE
+
+    scene, sets, _ = push_run(True)
+    h, steps = 1 / 30, 6
+    for name, options, unconverged in (("fast_mass_spring", {}, steps),
+                                       ("implicit_euler", {"newton_iters": 100, "velocity_tol": 0.0,
+                                                           "friction_updates": 20}, 0)):
+        sim = P.build(scene, sets, name, options)
+        P.set_stiffness(sim, 100.0, sim.model.group_k.to_numpy().copy())
+        sim.set_dt(h)
+        sim.integrator.stats()
+        sim.advance(steps)
+        s = sim.integrator.stats()
+        assert s["failed_solve_steps"] == 0 and s["unconverged_steps"] == unconverged, (name, s)
+        if not unconverged:
+            mu, g = float(sim.terrain.friction[None]), 9.8
+            vx = sim.state.v.to_numpy()[:, 0].mean()
+            assert abs(vx - (PUSH_SPEED - steps * mu * g * h)) < 0.01 * PUSH_SPEED, vx
+    stats = {"steps": 10, "failed_solve_steps": 0, "failed_solve_max_residual_m_s2": 0.0, "energy_clamped_steps": 0}
+    lines, meaningless = assess({**stats, "unconverged_steps": int(UNCONVERGED_WARN_SHARE * 10)})
+    assert len(lines) == 1 and "5 of 10 steps ended with a residual above 10x" in lines[0] and not meaningless
+    assert assess({**stats, "unconverged_steps": 4}) == ([], False)

@@ -95,7 +95,7 @@ def precision_fronts(rows: list[dict], path, cost_key: str, cost_label: str):
     """Error [m] against cost, one panel per (case, stiffness), one line per (integrator, tolerance);
     each family's Pareto front dashed (implicit black, explicit grey)."""
     from ..integrators import REGISTRY
-    from .precision import pareto_front
+    from .verdict import pareto_front
 
     cases = list(dict.fromkeys(r["case"] for r in rows))
     scales = list(dict.fromkeys(r["stiffness_scale"] for r in rows))

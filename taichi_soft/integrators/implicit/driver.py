@@ -25,18 +25,11 @@ from ...model import CHANGED_MASSES
 from ..base import Integrator
 from . import slots as S
 from .contact import ContactSet
+from .health import UNCONVERGED_FACTOR
 from .objective import Objective
 from .pairs import PairContacts
 from .restitution import SpreadBounce
 from .scheme import StepScheme
-
-
-# A step whose residual at its end is above this multiple of the tolerance is counted as
-# unconverged (``stats()["unconverged_steps"]``): it stopped at the iteration cap or because its
-# updates stalled. Such a step is not the implicit solution: a stiff cube pushed across the plane
-# at 1/30 s, stopped by stalled Newton steps at 22-53 m/s^2 (tolerance 0.1), lost 10x the
-# velocity Coulomb friction takes; converged, it lost exactly mu g h per step.
-UNCONVERGED_FACTOR = 10.0
 
 
 @ti.data_oriented
@@ -318,11 +311,11 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         self.acc[S.A_BOUNCE] += ti.cast(self.ctl[S.BOUNCE_LIMITED], ti.f64)
         self.acc[S.A_LB_RESTARTS] += ti.cast(self.ctl[S.LB_RESTARTS], ti.f64)
         self.acc[S.A_BDF2] += ti.cast(self.bdf2_step[None], ti.f64)
-        if self.tol2[None] > 0 and self.sc[S.RES2] > UNCONVERGED_FACTOR**2 * self.tol2[None]:
-            self.acc[S.A_UNCONVERGED] += 1.0
         if self.ctl[S.LS_FAILED]:
             self.acc[S.A_FAILED] += 1.0
             self.acc[S.A_FAILED_RES] = ti.max(self.acc[S.A_FAILED_RES], ti.cast(self._residual(), ti.f64))
+        elif self.tol2[None] > 0 and self.sc[S.RES2] > UNCONVERGED_FACTOR**2 * self.tol2[None]:
+            self.acc[S.A_UNCONVERGED] += 1.0  # (a failed step is counted as failed only)
 
     # -- the serial driver (inside the kernel that runs many steps) ------------------------------
     # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so

@@ -17,7 +17,7 @@ SHARED = {
                            "stop iterating once an update moves no particle faster than this [m/s] (0: off)"),
     "line_search_iters": Option(12, int_at_least(0), "an integer >= 0",
                                 "most step halvings per iteration (backtracking on the step's objective)"),
-    "friction_updates": Option(4, int_at_least(0), "an integer >= 0",
+    "friction_updates": Option(10, int_at_least(0), "an integer >= 0",
                                "most outer updates of the frozen friction multipliers per step"),
     "cg_iters": Option(200, int_at_least(1), "an integer >= 1", "most CG iterations per linear solve"),
     "body_contact": Option(True, is_bool, "true or false",
