@@ -314,6 +314,7 @@ def _row(case, name, tolerance, scale, dt, limit, members, ref, sim) -> dict:
            "wall_per_sim_s": wall / sim_time, "spring_passes_per_sim_s": passes / sim_time,
            "failed_solve_steps": sum(int(m["run"]["stats"].get("failed_solve_steps", 0)) for m in members),
            "energy_clamped_steps": sum(int(m["run"]["stats"].get("energy_clamped_steps", 0)) for m in members),
+           "unconverged_steps": sum(int(m["run"]["stats"].get("unconverged_steps", 0)) for m in members),
            "final_residual_m_s2": s.get("final_residual_m_s2")}
     if diverged:
         row.update(error=math.nan)
