@@ -102,7 +102,8 @@ def test_one_body_scene_and_contact_off_build_no_pair_code(make_sim, name):
 
 def test_serial_and_parallel_drivers_take_the_same_decisions(make_sim, tmp_path_factory):
     """The pair terms' decisions are ti.funcs of the shared phases: both launch modes reach the same
-    state through a landing at 1/30 s (implicit_euler; the drivers are shared by both solvers)."""
+    state through a landing at 1/30 s, and through a fall at 0.1 s whose pair list is rebuilt
+    mid-step (implicit_euler; the drivers are shared by both solvers)."""
     out = []
     for mode in ("serial", "parallel"):
         path = tmp_path_factory.mktemp("modes") / "two.toml"
@@ -113,8 +114,18 @@ def test_serial_and_parallel_drivers_take_the_same_decisions(make_sim, tmp_path_
         sim = make_sim(str(path), sets, integrator="implicit_euler", dt=1 / 30)
         sim.advance(15)
         assert sim.integrator.stats()["body_pairs_in_contact_per_step"] > 0
-        out.append(sim.state.numpy()[0])
-    np.testing.assert_allclose(out[0], out[1], atol=1e-9)
+        state = [sim.state.numpy()[0]]
+        # Both cubes at 10 m/s onto the plane at 0.1 s: the plane stops the lower one, the upper
+        # one's search directions leave the start paths' tube and the pair list is rebuilt.
+        sim.set_dt(0.1)
+        x = np.concatenate([lattice_points(3, SIZE) + c for c in ([0.0, 0.6, 0.0], [0.1, 2.2, 0.05])])
+        sim.state.set(x, np.tile([0.0, -10.0, 0.0], (len(x), 1)))
+        sim.terrain.reset(sim.state.x)
+        sim.advance(10)
+        assert sim.integrator.stats()["body_pair_lists_rebuilt_per_step"] > 0
+        out.append(state + [sim.state.numpy()[0]])
+    for a, b in zip(*out):
+        np.testing.assert_allclose(a, b, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", IMPLICIT)
