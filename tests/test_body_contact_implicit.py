@@ -102,7 +102,8 @@ def test_one_body_scene_and_contact_off_build_no_pair_code(make_sim, name):
 
 def test_serial_and_parallel_drivers_take_the_same_decisions(make_sim, tmp_path_factory):
     """The pair terms' decisions are ti.funcs of the shared phases: both launch modes reach the same
-    state through a landing at 1/30 s (implicit_euler; the drivers are shared by both solvers)."""
+    state through a landing at 1/30 s, and through a fall at 0.1 s whose pair list is rebuilt
+    mid-step (implicit_euler; the drivers are shared by both solvers)."""
     out = []
     for mode in ("serial", "parallel"):
         path = tmp_path_factory.mktemp("modes") / "two.toml"
@@ -113,23 +114,82 @@ def test_serial_and_parallel_drivers_take_the_same_decisions(make_sim, tmp_path_
         sim = make_sim(str(path), sets, integrator="implicit_euler", dt=1 / 30)
         sim.advance(15)
         assert sim.integrator.stats()["body_pairs_in_contact_per_step"] > 0
-        out.append(sim.state.numpy()[0])
-    np.testing.assert_allclose(out[0], out[1], atol=1e-9)
+        state = [sim.state.numpy()[0]]
+        # Both cubes at 10 m/s onto the plane at 0.1 s: the plane stops the lower one, the upper
+        # one's search directions leave the start paths' tube and the pair list is rebuilt.
+        sim.set_dt(0.1)
+        x = np.concatenate([lattice_points(3, SIZE) + c for c in ([0.0, 0.6, 0.0], [0.1, 2.2, 0.05])])
+        sim.state.set(x, np.tile([0.0, -10.0, 0.0], (len(x), 1)))
+        sim.terrain.reset(sim.state.x)
+        sim.advance(10)
+        assert sim.integrator.stats()["body_pair_lists_rebuilt_per_step"] > 0
+        out.append(state + [sim.state.numpy()[0]])
+    for a, b in zip(*out):
+        np.testing.assert_allclose(a, b, atol=1e-9)
 
 
-def test_a_pair_list_that_overflows_is_said(make_sim, tmp_path_factory):
-    """At a step far too large for the scene (a cube at 10 m/s onto another at 0.1 s: the candidate
-    distance takes in every pair of the two cubes, 4096 against a list of 1536), the dropped pairs
-    are counted and the run's health check says so (``run`` prints it on stderr)."""
+@pytest.mark.parametrize("name", IMPLICIT)
+def test_a_fast_cube_onto_a_cube_at_a_large_step_keeps_every_pair(make_sim, tmp_path_factory, name):
+    """A cube at 10 m/s onto a cube resting on the plane at dt = 0.1 s (1 m per step; the old rule's
+    candidate distance, twice the largest move, took in all 4096 pairs of the two cubes against a
+    list of 1536): no candidate pair is dropped; the overlap stays below 5 % of a spacing (the
+    penalty, kappa = 1000, stops an approach of v h = 1 m at about 1 mm; the upper cube's weight
+    presses about as little); the upper cube never passes into the lower one and ends on top; the
+    total energy (with the pairs' penalty energy) never rises above its running minimum."""
+    from taichi_soft.bench.energy import pair_energy
+
+    sim = _sim(make_sim, tmp_path_factory, name, "plane")
+    dt = 0.1
+    sim.set_dt(dt)
+    _place(sim, [[0.0, 0.5, 0.0], [0.1, 2.0, 0.05]], [(0, 0, 0), (0, -10.0, 0)], (0.0, -G, 0.0))
+    low_i, high_i = (b.particles for b in sim.model.bodies)
+    sim.integrator.stats()
+
+    def energy():
+        x, v = sim.state.numpy()
+        return total_energy(sim.model, x, v) + pair_energy(sim, x, dt)[0]
+
+    series, deepest = [energy()], 0.0
+    for _ in range(20):
+        sim.advance(1)
+        assert not sim.diverged
+        series.append(energy())
+        deepest = max(deepest, pair_energy(sim, sim.state.numpy()[0], dt)[1])
+        x = sim.state.numpy()[0]
+        assert x[high_i, 1].min() > x[low_i, 1].max() - 0.05 * SPACING  # never into the lower cube
+    stats = sim.integrator.stats()
+    sim.set_dt(1 / 60)  # (the cached simulation goes back to the other tests' step)
+    assert stats["body_pair_overflows"] == 0 and stats["body_pairs_in_contact_per_step"] > 0
+    assert stats["body_candidate_pairs_most"] <= sim.integrator.pairs.capacity
+    assert deepest < 0.05 * SPACING and stats["body_deepest_overlap_m"] < 0.05 * SPACING
+    e = np.asarray(series)
+    assert np.max(e[1:] - np.minimum.accumulate(e)[:-1]) <= 1e-9 * np.abs(e).max()
+    x = sim.state.numpy()[0]
+    assert x[high_i, 1].mean() == pytest.approx(x[low_i, 1].mean() + SIZE + SPACING, abs=0.5 * SPACING)
+
+
+def test_a_pair_list_that_overflows_is_said(make_sim, tmp_path_factory, monkeypatch):
+    """A list too small for the scene (two candidate slots, built for this test) while a cube at
+    10 m/s lands on another at 0.1 s: the dropped pairs are counted and the run's health check says
+    so (``run`` prints it on stderr)."""
+    from taichi_soft.integrators.implicit import pair_list
     from taichi_soft.integrators.implicit.health import assess
 
-    sim = _sim(make_sim, tmp_path_factory, "implicit_euler", "plane")
-    sim.set_dt(0.1)
-    _place(sim, [[0.0, 0.5, 0.0], [0.1, 2.0, 0.05]], [(0, 0, 0), (0, -10.0, 0)], (0.0, -G, 0.0))
+    path = tmp_path_factory.mktemp("scenes") / "two.toml"
+    path.write_text("[[body]]\n[[body]]\n[terrain]\nkind = \"plane\"\npoint = [0, 0, 0]\n")
+    sets = []
+    for b, c in enumerate([[0.0, 0.5, 0.0], [0.1, 2.0, 0.05]]):
+        sets += [f"body.{b}.n=3", f"body.{b}.size={SIZE}", f"body.{b}.center={c}"]
+    monkeypatch.setattr(pair_list, "PAIRS_PER_PARTICLE", 2 / 54)  # 2 slots for the 54 particles
+    sim = make_sim(str(path), sets, integrator="implicit_euler", dt=0.1)
+    assert sim.integrator.pairs.capacity == 2
+    x, v = sim.state.numpy()
+    v[sim.model.bodies[1].particles] = (0.0, -10.0, 0.0)
+    sim.state.set(x, v)
+    sim.terrain.reset(sim.state.x)
     sim.integrator.stats()
     sim.advance(2)
     stats = sim.integrator.stats()
     assert stats["body_pair_overflows"] > 0
     lines, _ = assess(stats)
     assert any("did not fit the pair list" in line and "smaller --dt" in line for line in lines), lines
-    sim.set_dt(1 / 60)  # (the cached simulation goes back to the other tests' step)

@@ -183,7 +183,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
                     self.lam[i] = 0.0
                     self.lam_end[i] = 0.0
         if ti.static(self._has_pairs()):
-            self.pairs.begin(self.x_prev, self.yd, self.dx)
+            self.pairs.begin(self.x_prev, self.yd, self.dx, self.u)
         for k in ti.static(range(S.N_CTL)):
             self.ctl[k] = 0
         self.sc[S.RES_PREV] = 1e30  # no release before a residual is known
@@ -334,6 +334,8 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
                 if searching:
                     self._direction(x)
                     self._after_direction()
+                    if ti.static(self._has_pairs()):
+                        self.pairs.follow()  # the pair list along the direction (pair_list.py)
             if searching:
                 for _h in range(self.ctl[S.LS_LIMIT] + 1):
                     self._trial(x, dt)
@@ -363,6 +365,10 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
                 if searching:
                     self._direction_python(x)
                     self._k_after_direction()
+                    if self.pairs is not None:
+                        self._k_pairs_check()
+                        if self.pairs.again[None]:
+                            self._k_pairs_regather()
             if searching:
                 for _ in range(int(self.ctl[S.LS_LIMIT]) + 1):
                     self._k_trial_decide(x, dt)
@@ -397,6 +403,14 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
     @ti.kernel
     def _k_after_direction(self):
         self._after_direction()
+
+    @ti.kernel
+    def _k_pairs_check(self):
+        self.pairs.check()
+
+    @ti.kernel
+    def _k_pairs_regather(self):
+        self.pairs.regather()
 
     def _end_python(self, x, v, dt, step):
         self._k_end_velocities(x, dt)

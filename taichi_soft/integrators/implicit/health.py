@@ -48,8 +48,8 @@ def assess(stats: dict) -> tuple[list[str], bool]:
                      "or use a smaller --dt")
     dropped = int(stats.get("body_pair_overflows", 0))
     if dropped:
-        # The candidate list holds pairs.PAIRS_PER_PARTICLE per particle; at large steps the
-        # candidate distance (twice the largest predicted move) takes in whole neighbouring bodies.
+        # The candidate list holds pair_list.PAIRS_PER_PARTICLE per particle; its candidates are the
+        # pairs whose relative path meets (pair_list.py), so only a dense crowd of contacts fills it.
         lines.append(f"{dropped} candidate body-contact pairs did not fit the pair list and were left out of "
                      f"the steps (deepest overlap between bodies {stats.get('body_deepest_overlap_m', 0.0):.3g} m): "
                      "bodies may have passed into each other; use a smaller --dt")

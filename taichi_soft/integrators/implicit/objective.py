@@ -192,7 +192,7 @@ class Objective:
             self.u_trial[i] = ui
             if self._free(i):
                 if ti.static(self._has_pairs()):
-                    self.pairs.track(ui)  # the trust region
+                    self.pairs.track(i, ui)  # the trust region
                 diff = ui - self.yd[i]
                 self.sc[S.F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff)
                 if ti.static(self.model.has_grab()):

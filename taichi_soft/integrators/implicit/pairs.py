@@ -6,14 +6,11 @@ scene compiles none of this). Particles are spheres of radius half their body's 
 different bodies overlaps by o = R_ij - |x_i - x_j|, R_ij = r_i + r_j. Per step
 (docs/implicit.md, "Contact between bodies"):
 
-* **Pairs** (``begin``): each body's bounding box at x_n; only particles within ``cell`` of
-  another body's box are hashed (bodies apart cost a few passes over the particles and no
-  lookups), into a uniform grid of edge ``cell`` (a counting sort: no bucket can overflow); the
-  candidate pairs are those closer than R_ij + ``slack`` at x_n, ``slack`` = 2 max |y - x_n| +
-  R_max / 2 (y the predictor). **Trust region**: every trial point of the step keeps each particle
-  within ``slack`` / 2 of x_n (a trial beyond is rejected, counted), so a pair outside the list
-  cannot come into contact anywhere the solver looks: the list is complete for the whole step
-  without a rebuild per iteration.
+* **Pairs** (``begin``, ``follow``; pair_list.py): the candidate pairs are those whose relative
+  path along the step's segments comes within R_ij + R_max / 2 of contact, found through a
+  spatial hash of the particles near another body's box; the list is built along the start paths
+  and rebuilt when a search direction would leave the tube it is complete for (a trial outside is
+  rejected, counted), so a pair outside the list cannot touch anywhere the solver looks.
 * **Feasible start**: the start fraction t of the predicted move is lowered to the first contact
   of any candidate pair (the terrain's feasible start, extended to pairs).
 * **Contact in the objective**: a stiff penalty kappa m_ij / 2 o^2 [kg m^2] per overlapping pair
@@ -34,29 +31,16 @@ different bodies overlaps by o = R_ij - |x_i - x_j|, R_ij = r_i + r_j. Per step
 
 import taichi as ti
 
-from ...collision import BodyGrid, table_size
 from . import slots as S
 from .objective import lagged_friction
+from .pair_list import (N_PACC, P_BOUNCES, P_CONTACT, P_DEEPEST, P_GATHERS, P_MOST, P_OVERFLOW, P_PAIRS,
+                        P_REMOVED, P_TRUST, PAIRS_PER_PARTICLE, PairList, field_bytes)
 
-# Capacity of the candidate list per particle (overflow is counted). The pile scene needs under 1 per
-# particle (525 candidates for 683 particles at 1/60 s); a fast body widens the slack and with it the list.
-PAIRS_PER_PARTICLE = 12
-# stats accumulators (f64)
-P_CONTACT, P_REMOVED, P_DEEPEST, P_OVERFLOW, P_TRUST, P_PAIRS, P_BOUNCES = range(7)
-N_PACC = 7
-
-
-def field_bytes(n_particles: int, real_bytes: int) -> int:
-    """Bytes of a ``PairContacts``'s fields (for the memory model): per candidate pair two ends
-    (i32), a multiplier, its normal and a 3x3 block (reals); per particle body, near flag, sorted
-    index and contact count (i32), radius, gradient, restitution and a 3x3 block (reals); per hash
-    bucket a count and a start (i32)."""
-    pairs = PAIRS_PER_PARTICLE * n_particles * (2 * 4 + 13 * real_bytes)
-    return pairs + n_particles * (4 * 4 + 16 * real_bytes) + table_size(n_particles) * 2 * 4
+__all__ = ["PairContacts", "PAIRS_PER_PARTICLE", "field_bytes"]
 
 
 @ti.data_oriented
-class PairContacts(BodyGrid):
+class PairContacts(PairList):
     """Contact between the bodies of ``owner.model`` inside ``owner``'s step (an ImplicitIntegrator)."""
 
     def __init__(self, owner, stiffness: float):
@@ -65,35 +49,23 @@ class PairContacts(BodyGrid):
         self.owner = owner
         self.model = model
         self.terrain = owner.terrain
-        radii = self._init_grid(model)  # (the boxes are at x_n)
-        self.capacity = PAIRS_PER_PARTICLE * n
+        self._init_list(owner, model)
         vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
-        self.r_max = ti.field(float, ())  # largest contact distance R_ij [m]
         self.kappa = ti.field(float, ())  # penalty stiffness [-], times m_ij / h^2 [N/m]
         self.kappa[None] = stiffness
-        self.slack = ti.field(float, ())  # candidate distance beyond R_ij [m]; trust radius slack / 2
-        self.move = ti.field(float, ())  # largest |x_trial - x_n| of the last trial [m]
-        self.bucket_count = ti.field(ti.i32, self.table_size)
-        self.bucket_start = ti.field(ti.i32, self.table_size + 1)
-        self.sorted = ti.field(ti.i32, n)
-        self.n_pairs = ti.field(ti.i32, ())
-        self.pa = ti.field(ti.i32, self.capacity)
-        self.pb = ti.field(ti.i32, self.capacity)
-        self.lam = ti.field(float, self.capacity)  # frozen friction multiplier h^2 |F_n| [kg m]
-        self.fnormal = vec(self.capacity)  # the normal frozen with it
         self.block = ti.Matrix.field(3, 3, float, self.capacity)  # pair Hessian block [kg]
         self.grad = vec(n)  # pair terms' gradient per particle [kg m]
         self.hess = ti.Matrix.field(3, 3, float, n)  # their diagonal Hessian blocks [kg]
         self.dv = vec(n)  # restitution velocity change [m/s]
         self.touch = ti.field(ti.i32, n)  # pairs in contact at the end of the step
         self.acc = ti.field(ti.f64, N_PACC)
-        self.r_max[None] = 2.0 * float(radii.max())
 
     def stats(self, steps: float) -> dict:
         """Counters for the run summary since the last call: pairs in contact at the end of a step
         (per step), overlap the predictor would have made and the step removed [m, summed over
-        pairs and steps], the deepest overlap at the end of any step [m], candidate pairs per step,
-        restitution bounces, list overflows and trials beyond the trust region."""
+        pairs and steps], the deepest overlap at the end of any step [m], candidate pairs per step
+        and the most in one list, lists rebuilt for a search direction (per step), restitution
+        bounces, list overflows and trials outside the tube (pair_list.py)."""
         a = self.acc.to_numpy()
         self.acc.fill(0)
         return {
@@ -101,6 +73,8 @@ class PairContacts(BodyGrid):
             "body_overlap_removed_m": float(a[P_REMOVED]),
             "body_deepest_overlap_m": float(a[P_DEEPEST]),
             "body_candidate_pairs_per_step": float(a[P_PAIRS]) / steps,
+            "body_candidate_pairs_most": int(a[P_MOST]),
+            "body_pair_lists_rebuilt_per_step": float(a[P_GATHERS]) / steps,
             "body_bounces": int(a[P_BOUNCES]),
             "body_pair_overflows": int(a[P_OVERFLOW]),
             "body_trust_region_rejections": int(a[P_TRUST]),
@@ -122,44 +96,22 @@ class PairContacts(BodyGrid):
 
     # -- begin: candidate pairs, feasible start ---------------------------------------------------
     @ti.func
-    def begin(self, xp: ti.template(), yd: ti.template(), d: ti.template()):
-        """Candidate pairs at x_n = ``xp`` for the predicted move ``yd`` = y - x_n [m]; lowers the
-        owner's start fraction T_MAX to the first contact along the start direction ``d`` [m]."""
-        self.slack[None] = 0.0
+    def begin(self, xp: ti.template(), yd: ti.template(), d: ti.template(), u0: ti.template()):
+        """Candidate pairs for the tube around the start paths x_n + u0 + t d (x_n = ``xp``; u0 the
+        pinned particles' fixed move; pair_list.py); lowers the owner's start fraction T_MAX to the
+        first contact along them. ``yd`` = y - x_n (the predicted move) is for the removed-overlap
+        counter."""
         for i in range(self.n):
-            ti.atomic_max(self.slack[None], yd[i].norm())
-        self.slack[None] = 2.0 * self.slack[None] + 0.5 * self.r_max[None]
-        self.cell[None] = self.r_max[None] + self.slack[None]
-        self._mark_near(xp)
-        for h in range(self.table_size):
-            self.bucket_count[h] = 0
-        self.n_pairs[None] = 0
-        for i in range(self.n):
-            if self.near[i]:
-                ti.atomic_add(self.bucket_count[self._bucket(self._cell_of(xp[i]))], 1)
-        for _ in range(1):  # one thread: the prefix sum is sequential
-            total = 0
-            for h in range(self.table_size):
-                self.bucket_start[h] = total
-                total += self.bucket_count[h]
-                self.bucket_count[h] = 0  # reused as the fill cursor
-            self.bucket_start[self.table_size] = total
-        for i in range(self.n):
-            if self.near[i]:
-                h = self._bucket(self._cell_of(xp[i]))
-                k = ti.atomic_add(self.bucket_count[h], 1)
-                self.sorted[self.bucket_start[h] + k] = i
-        for i in range(self.n):
-            if self.near[i]:
-                self._find(xp, i)
-        self.n_pairs[None] = ti.min(self.n_pairs[None], self.capacity)
+            self.base[i] = u0[i]
+            self.path[i] = d[i]
+        self._collect(xp)
         self.acc[P_PAIRS] += ti.cast(self.n_pairs[None], ti.f64)
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             self.lam[p] = 0.0
             r = self._reach(i, j)
-            a = xp[i] - xp[j]
-            self.acc[P_REMOVED] += ti.cast(ti.max(r - (a + yd[i] - yd[j]).norm(), 0.0), ti.f64)
+            a = (xp[i] + u0[i]) - (xp[j] + u0[j])
+            self.acc[P_REMOVED] += ti.cast(ti.max(r - (xp[i] - xp[j] + yd[i] - yd[j]).norm(), 0.0), ti.f64)
             b = d[i] - d[j]
             # First t in (0, 1] with |a + t b| = r, for a pair apart at x_n.
             bb = b.dot(b)
@@ -173,25 +125,12 @@ class PairContacts(BodyGrid):
                         ti.atomic_min(self.owner.sc[S.T_MAX], ti.max(t, 0.0))
 
     @ti.func
-    def _find(self, xp: ti.template(), i):
-        """Append particle i's candidate pairs (j > i, another body, within R_ij + slack at x_n)."""
-        xi, bi = xp[i], self.body[i]
-        ci = self._cell_of(xi)
-        for o in range(27):  # the 3x3x3 cells around i's (a run-time loop: unrolled it compiles slowly)
-            c = ci + ti.Vector([o // 9 - 1, (o // 3) % 3 - 1, o % 3 - 1])
-            h = self._bucket(c)
-            for k in range(self.bucket_start[h], self.bucket_start[h + 1]):
-                j = self.sorted[k]
-                # Buckets are shared by distant cells (and two neighbour cells may share one):
-                # take j only from the cell it really lies in, so each pair is seen once.
-                if j > i and self.body[j] != bi and all(self._cell_of(xp[j]) == c):
-                    if (xi - xp[j]).norm() < self._reach(i, j) + self.slack[None]:
-                        p = ti.atomic_add(self.n_pairs[None], 1)
-                        if p < self.capacity:
-                            self.pa[p] = i
-                            self.pb[p] = j
-                        else:
-                            ti.atomic_add(self.acc[P_OVERFLOW], 1.0)
+    def follow(self):
+        """After a search direction (serial driver): rebuild the list if the line search could leave
+        the tube (pair_list.py)."""
+        self.check()
+        if self.again[None]:
+            self.regather()
 
     # -- the objective --------------------------------------------------------------------------
     @ti.func
@@ -273,18 +212,9 @@ class PairContacts(BodyGrid):
             dst[j] -= self.owner._filter(j, hb @ src[i])
 
     @ti.func
-    def trial_begin(self):
-        self.move[None] = 0.0
-
-    @ti.func
-    def track(self, ui):
-        """Record a trial particle's displacement ``ui`` from x_n [m] (the trust region)."""
-        ti.atomic_max(self.move[None], ui.norm())
-
-    @ti.func
     def trial_end(self, xt: ti.template(), ut: ti.template(), dt):
         """Add the pair terms at the trial point xt (displacements ut) to F_TRIAL (penalty and frozen friction) and the
-        penalty's energy [J] to E_TRIAL; a trial beyond the trust region gets an infinite value."""
+        penalty's energy [J] to E_TRIAL; a trial outside the tube (pair_list.py) gets an infinite value."""
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             ov = self._reach(i, j) - (xt[i] - xt[j]).norm()
@@ -295,7 +225,7 @@ class PairContacts(BodyGrid):
             if self.lam[p] > 0:
                 fe, _g, _h = self._friction(p, ut, self.fnormal[p], self.lam[p])
                 self.owner.sc[S.F_TRIAL] += fe
-        if self.move[None] > 0.5 * self.slack[None]:
+        if self.outside():
             self.owner.sc[S.F_TRIAL] = 1e300
             self.acc[P_TRUST] += 1.0
 
