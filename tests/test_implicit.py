@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+import implicit_probe as probe
 from physics_helpers import build, simulate, stretched, total_energy
 from taichi_soft.integrators import REGISTRY, make_integrator
 
@@ -38,7 +39,7 @@ def _begun(dt, x_eval, damping=60.0, n=3):
     state = model.state()
     rng = np.random.default_rng(1)
     state.set(model.x0_np, rng.normal(size=(model.n_particles, 3)))
-    integ.begin(state, dt)
+    probe.begin(integ, state, dt)
     state.set(x_eval(model), np.zeros((model.n_particles, 3)))
     return model, integ, state
 
@@ -50,14 +51,14 @@ def test_gradient_matches_finite_differences(scale):
     model, integ, state = _begun(dt, lambda m: m.x0_np.mean(0) + scale * (m.x0_np - m.x0_np.mean(0))
                                  + 0.02 * rng.normal(size=m.x0_np.shape))
     x = state.x.to_numpy()
-    grad = integ.gradient(state, dt)
+    grad = probe.gradient(integ, state, dt)
     for _ in range(3):
         w = rng.normal(size=x.shape)
         eps = 1e-6
         state.x.from_numpy(x + eps * w)
-        fp = integ.objective(state, dt)
+        fp = probe.objective(integ, state, dt)
         state.x.from_numpy(x - eps * w)
-        fm = integ.objective(state, dt)
+        fm = probe.objective(integ, state, dt)
         fd = (fp - fm) / (2 * eps)
         assert fd == pytest.approx(float(np.sum(grad * w)), rel=1e-6, abs=1e-8)
 
@@ -69,12 +70,12 @@ def test_hessian_vector_product_matches_finite_differences():
     model, integ, state = _begun(dt, lambda m: m.x0_np.mean(0) + 1.2 * (m.x0_np - m.x0_np.mean(0)))
     x = state.x.to_numpy()
     w = rng.normal(size=x.shape)
-    hw = integ.hessian_product(state, dt, w)
+    hw = probe.hessian_product(integ, state, dt, w)
     eps = 1e-6
     grads = []
     for sign in (1, -1):
         state.x.from_numpy(x + sign * eps * w)
-        grads.append(integ.gradient(state, dt))
+        grads.append(probe.gradient(integ, state, dt))
     fd = (grads[0] - grads[1]) / (2 * eps)
     assert np.abs(fd - hw).max() <= 1e-6 * np.abs(hw).max()
 
@@ -86,7 +87,7 @@ def test_projected_hessian_is_positive_definite_under_compression():
     for _ in range(5):
         w = rng.normal(size=(model.n_particles, 3))
         # w^T H w >= w^T M w: the spring part is PSD after the clamp.
-        assert np.sum(w * integ.hessian_product(state, dt, w)) >= np.sum(model.mass_np[:, None] * w * w) * (1 - 1e-12)
+        assert np.sum(w * probe.hessian_product(integ, state, dt, w)) >= np.sum(model.mass_np[:, None] * w * w) * (1 - 1e-12)
 
 
 # -- solver convergence ----------------------------------------------------------------------

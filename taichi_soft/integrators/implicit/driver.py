@@ -14,8 +14,9 @@ A step (docs/implicit.md):
    (``Terrain.respond``, divergence check), and, as a counted last resort, the energy clamp.
 
 Every decision (convergence tests, Armijo, the forcing term, recording) is a ti.func writing
-``ctl``/``sc``; the serial driver (``_solve``, inside the one-launch kernel of many steps) and the
-parallel driver (``_solve_python``, one launch per phase) only sequence them.
+``ctl``/``sc``; the serial driver (``_solve``, here, inside the one-launch kernel of many steps)
+and the parallel driver (``parallel.py``, one launch per phase) only sequence them. Phase 4 is
+``step_end.py``; the step's counters ``accounts.py``.
 """
 
 import numpy as np
@@ -24,16 +25,19 @@ import taichi as ti
 from ...model import CHANGED_MASSES
 from ..base import Integrator
 from . import slots as S
+from .accounts import StepAccounts
 from .contact import ContactSet
-from .health import UNCONVERGED_FACTOR
 from .objective import Objective
 from .pairs import PairContacts
+from .parallel import ParallelDriver
 from .restitution import SpreadBounce
 from .scheme import StepScheme
+from .step_end import StepEnd
 
 
 @ti.data_oriented
-class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integrator):
+class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEnd, StepAccounts, ParallelDriver,
+                         Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
@@ -299,24 +303,6 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         self.ctl[S.OUTER] += 1
         self._line_search_begin(1.0, self.ls_iters[None])
 
-    @ti.func
-    def _account(self):
-        self.acc[S.A_STEPS] += 1.0
-        self.acc[S.A_OUTER] += ti.cast(self.ctl[S.OUTER], ti.f64)
-        self.acc[S.A_CG] += ti.cast(self.ctl[S.CG], ti.f64)
-        self.acc[S.A_LS] += ti.cast(self.ctl[S.BACKTRACKS], ti.f64)
-        self.acc[S.A_RES] += ti.cast(self._residual(), ti.f64)
-        self.acc[S.A_UPDATES] += ti.cast(self.ctl[S.UPDATES], ti.f64)
-        self.acc[S.A_CLAMPED] += ti.cast(self.ctl[S.CLAMPED], ti.f64)
-        self.acc[S.A_BOUNCE] += ti.cast(self.ctl[S.BOUNCE_LIMITED], ti.f64)
-        self.acc[S.A_LB_RESTARTS] += ti.cast(self.ctl[S.LB_RESTARTS], ti.f64)
-        self.acc[S.A_BDF2] += ti.cast(self.bdf2_step[None], ti.f64)
-        if self.ctl[S.LS_FAILED]:
-            self.acc[S.A_FAILED] += 1.0
-            self.acc[S.A_FAILED_RES] = ti.max(self.acc[S.A_FAILED_RES], ti.cast(self._residual(), ti.f64))
-        elif self.tol2[None] > 0 and self.sc[S.RES2] > UNCONVERGED_FACTOR**2 * self.tol2[None]:
-            self.acc[S.A_UNCONVERGED] += 1.0  # (a failed step is counted as failed only)
-
     # -- the serial driver (inside the kernel that runs many steps) ------------------------------
     # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so
     # one loop runs all three phases and every phase function has a single call site (the serial
@@ -353,176 +339,13 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
         self._solve(x, he)
         self._end_step(x, v, he, step)
 
-    # -- the parallel driver (Python sequences the same phases, one launch each) -----------------
-    def _solve_python(self, x, dt):
-        for _ in range(int(self.max_iters[None]) + int(self.max_updates[None]) + 3):
-            searching = self.ctl[S.PHASE] < 2
-            if not searching:
-                self._k_gradient_decide(x, dt)
-                if self.ctl[S.DONE]:
-                    break
-                searching = not self.ctl[S.UPDATE]
-                if searching:
-                    self._direction_python(x)
-                    self._k_after_direction()
-                    if self.pairs is not None:
-                        self._k_pairs_check()
-                        if self.pairs.again[None]:
-                            self._k_pairs_regather()
-            if searching:
-                for _ in range(int(self.ctl[S.LS_LIMIT]) + 1):
-                    self._k_trial_decide(x, dt)
-                    if self.ctl[S.LS_DONE]:
-                        break
-                self._k_accept(x)
-                if self.ctl[S.DONE]:
-                    break
-
-    @ti.kernel
-    def _k_begin(self, x: ti.template(), v: ti.template(), dt: float):
-        self._begin_step(x, v, dt)
-
-    @ti.kernel
-    def _k_trial_decide(self, x: ti.template(), dt: float):
-        self._trial(x, dt)
-        self._line_search_decide()
-
-    @ti.kernel
-    def _k_accept(self, x: ti.template()):
-        self._accept(x)
-
-    @ti.kernel
-    def _k_gradient_decide(self, x: ti.template(), dt: float):
-        self._gradient(x, dt)
-        self._after_gradient(dt)
-
-    @ti.kernel
-    def _k_add_cg(self, iters: ti.i32):
-        self.ctl[S.CG] += iters
-
-    @ti.kernel
-    def _k_after_direction(self):
-        self._after_direction()
-
-    @ti.kernel
-    def _k_pairs_check(self):
-        self.pairs.check()
-
-    @ti.kernel
-    def _k_pairs_regather(self):
-        self.pairs.regather()
-
-    def _end_python(self, x, v, dt, step):
-        self._k_end_velocities(x, dt)
-        if self.terrain.has_contact:
-            self._bounce_spread_python()
-        self._k_end_finish(x, v, step)
-
-    @ti.kernel
-    def _k_end_velocities(self, x: ti.template(), dt: float):
-        self._end_velocities(x, dt)
-
-    @ti.kernel
-    def _k_end_finish(self, x: ti.template(), v: ti.template(), step: ti.i32):
-        self._end_finish(x, v, step)
-
-    # -- phase 4: end --------------------------------------------------------------------------------
-    @ti.func
-    def _end_step(self, x: ti.template(), v: ti.template(), dt, step):
-        """v = (u - u_base)/h_e ((x - x_n)/h for backward Euler); restitution as a velocity step
-        through the body (restitution.py) and body-body responses, scaled to the energy the step lost;
-        ``_finish``; then, if the step still ends with more energy than it began with (beyond
-        round-off), the counted clamp."""
-        self._end_velocities(x, dt)
-        if ti.static(self.terrain.has_contact):
-            self._bounce_spread()
-        self._end_finish(x, v, step)
-
-    @ti.func
-    def _end_velocities(self, x: ti.template(), dt):
-        """Solved velocities (dt: this step's h_eff), and the restitution each held particle asks for
-        (its normal part prescribed for the spread, the tangential friction loss kept local)."""
-        m = self.model
-        self.sc[S.K_SOLVE] = 0.0
-        self.sc[S.G_END] = 0.0
-        self.sc[S.N_BOUNCE] = 0.0
-        if ti.static(not self.terrain.has_contact):
-            self._translation_minimum(x)
-        if ti.static(self._has_pairs()):
-            self.pairs.end(x, dt)
-        for i in range(self.n):
-            vi = (self.u[i] - self.u_base[i]) / dt
-            delta = ti.Vector.zero(float, 3)
-            if ti.static(self.terrain.has_contact):
-                delta = self._bounce_split(i, self._bounce(i, vi, x[i]))
-            if ti.static(self._has_pairs()):
-                delta += self.pairs.dv[i]
-            self.v_new[i] = vi
-            self.dv[i] = delta
-            if self._free(i):
-                self.sc[S.K_SOLVE] += 0.5 * m.mass[i] * vi.dot(vi)
-                self.sc[S.G_END] -= m.mass[i] * m.gravity[None].dot(self.u[i])
-
-    @ti.func
-    def _end_finish(self, x: ti.template(), v: ti.template(), step):
-        m = self.model
-        scale = ti.cast(1.0, float)
-        if ti.static(self.terrain.has_contact or self._has_pairs()):
-            self.sc[S.BOUNCE_A] = 0.0
-            self.sc[S.BOUNCE_B] = 0.0
-            for i in range(self.n):
-                delta = self._bounce_total(i)
-                self.dv[i] = delta
-                if self._free(i):
-                    self.sc[S.BOUNCE_A] += 0.5 * m.mass[i] * delta.dot(delta)
-                    self.sc[S.BOUNCE_B] += m.mass[i] * self.v_new[i].dot(delta)
-            lost = self.sc[S.H_START] - (self.sc[S.K_SOLVE] + self.sc[S.G_END] + self.sc[S.E_CUR])
-            scale = self._bounce_scale(lost)
-        self.sc[S.K_END] = 0.0
-        for i in range(self.n):
-            self._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
-            if self._free(i):
-                self.sc[S.K_END] += 0.5 * m.mass[i] * v[i].dot(v[i])
-        # Last resort, counted in stats(): take the excess out of the kinetic energy.
-        excess = self.sc[S.K_END] + self.sc[S.G_END] + self.sc[S.E_CUR] - self.sc[S.H_START]
-        f = ti.cast(1.0, float)
-        noise = self.sc[S.H_SCALE] + self.sc[S.K_END] + ti.abs(self.sc[S.G_END])  # scale of its round-off
-        if self.clamp_on[None] and excess > self.energy_tol[None] * noise:
-            self.ctl[S.CLAMPED] = 1
-            k_end = self.sc[S.K_END]
-            if k_end > 0:
-                f = ti.sqrt(ti.max(k_end - excess, 0.0) / k_end)
-        for i in range(self.n):
-            if f < 1.0 and self._free(i):
-                v[i] *= f
-        self._record_history(x, v)
-        self._account()
-
     # -- public API -----------------------------------------------------------------------------------
     def advance(self, state, dt: float, n_steps: int) -> int:
         self._sync_masses()
         self._prepare(dt)
         if self._serial() or n_steps <= 0 or self.diverged:
             return super().advance(state, dt, n_steps)
-        start = self._step_counter
-        for k in range(n_steps):
-            self._k_begin(state.x, state.v, dt)
-            he = float(self.h_eff[None])
-            self._solve_python(state.x, he)
-            self._end_python(state.x, state.v, he, start + k)
-            if self.diverged:
-                break
-        self._step_counter += n_steps
-        bad = int(self.diverged_step[None])
-        return bad - start + 1 if self.diverged else n_steps
-
-    @classmethod
-    def spring_passes_per_step(cls, stats: dict) -> float:
-        """One pass per objective evaluation (the reference, each iteration's gradient and each
-        line-search trial: 1 + iterations + halvings) plus one per CG iteration (a Hessian
-        product), from ``stats()``'s per-step averages."""
-        outer = stats.get("newton_iterations_per_step", stats.get("local_global_iterations_per_step", 0.0))
-        return 1.0 + outer + stats.get("line_search_halvings_per_step", 0.0) + stats.get("cg_iterations_per_step", 0.0)
+        return self._advance_parallel(state, dt, n_steps)
 
     def notify_model_changed(self, flags: int):
         super().notify_model_changed(flags)
@@ -555,75 +378,3 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, Integr
     def residual_history(self) -> list[float]:
         """Residual [m/s^2] at each gradient evaluation of the last step (the first at the start)."""
         return self.res_history.to_numpy()[: int(self.n_history[None])].tolist()
-
-    # Evaluation at a given state, for checks of the objective's derivatives. ``begin`` starts a
-    # step at ``state`` (it does not move the state's free particles); the others evaluate at
-    # ``state.x`` for that step, with no particle held and no friction.
-    def begin(self, state, dt: float):
-        """Start a step of ``dt`` [s] at ``state`` without solving it."""
-        self._sync_masses()
-        self._k_begin(state.x, state.v, dt)
-        self._k_no_contacts()
-
-    def objective(self, state, dt: float) -> float:
-        """g(state.x) [kg m^2] for the step begun last."""
-        self._k_displace(state.x)
-        self._k_trial_at(state.x, dt, 0.0)
-        return float(self.sc[S.F_TRIAL])
-
-    def gradient(self, state, dt: float) -> np.ndarray:
-        """grad g(state.x) [kg m], an [n, 3] array."""
-        self._k_displace(state.x)
-        self._k_gradient_decide(state.x, dt)
-        return self.grad.to_numpy()
-
-    def hessian_product(self, state, dt: float, w: np.ndarray) -> np.ndarray:
-        """H w [kg m], H the (PSD-clamped) Hessian the solver uses at state.x; w an [n, 3] array."""
-        self._k_displace(state.x)
-        self._k_gradient_decide(state.x, dt)
-        src = ti.Vector.field(3, float, self.n)
-        dst = ti.Vector.field(3, float, self.n)
-        src.from_numpy(np.asarray(w, dtype=self.model.real))
-        self._k_apply(src, dst)
-        return dst.to_numpy()
-
-    @ti.kernel
-    def _k_displace(self, x: ti.template()):
-        for i in range(self.n):
-            self.u[i] = x[i] - self.x_prev[i]
-
-    @ti.kernel
-    def _k_no_contacts(self):
-        for i in range(self.n):
-            self.active[i] = 0
-            self.lam[i] = 0.0
-            self.lam_end[i] = 0.0
-
-    @ti.kernel
-    def _k_trial_at(self, x: ti.template(), dt: float, alpha: float):
-        for i in range(self.n):
-            self.dx[i] = ti.Vector.zero(float, 3)
-        self.sc[S.ALPHA] = alpha
-        self._trial(x, dt)
-
-    @ti.kernel
-    def _k_apply(self, src: ti.template(), dst: ti.template()):
-        self.apply(src, dst)
-
-    def _take_stats(self) -> list:
-        a = [float(c) for c in self.acc.to_numpy()]
-        self.acc.fill(0)
-        return a
-
-    def _contact_stats(self, a: list, steps: float) -> dict:
-        """The counts of steps something intervened in or failed (``health.assess`` reads them)."""
-        return {
-            "failed_solve_steps": int(a[S.A_FAILED]),
-            "failed_solve_max_residual_m_s2": a[S.A_FAILED_RES],
-            "friction_updates_per_step": a[S.A_UPDATES] / steps,
-            "energy_clamped_steps": int(a[S.A_CLAMPED]),
-            "restitution_limited_steps": int(a[S.A_BOUNCE]),
-            "bdf2_steps": int(a[S.A_BDF2]),
-            "unconverged_steps": int(a[S.A_UNCONVERGED]),
-            **(self.pairs.stats(steps) if self.pairs is not None else {}),
-        }

@@ -1,0 +1,86 @@
+"""Phase 4 of the implicit step, its end: velocities from the solve, restitution as a velocity
+step through the body (restitution.py) and the body-body responses, scaled to the energy the step
+lost, ``Integrator._finish`` (``Terrain.respond``, the divergence check), and, as a counted last
+resort, the energy clamp. Shared by the serial and the parallel driver.
+"""
+
+import taichi as ti
+
+from . import slots as S
+
+
+@ti.data_oriented
+class StepEnd:
+    """Mixin of ``ImplicitIntegrator``: the end of a step."""
+
+    @ti.func
+    def _end_step(self, x: ti.template(), v: ti.template(), dt, step):
+        """v = (u - u_base)/h_e ((x - x_n)/h for backward Euler); restitution as a velocity step
+        through the body (restitution.py) and body-body responses, scaled to the energy the step lost;
+        ``_finish``; then, if the step still ends with more energy than it began with (beyond
+        round-off), the counted clamp."""
+        self._end_velocities(x, dt)
+        if ti.static(self.terrain.has_contact):
+            self._bounce_spread()
+        self._end_finish(x, v, step)
+
+    @ti.func
+    def _end_velocities(self, x: ti.template(), dt):
+        """Solved velocities (dt: this step's h_eff), and the restitution each held particle asks for
+        (its normal part prescribed for the spread, the tangential friction loss kept local)."""
+        m = self.model
+        self.sc[S.K_SOLVE] = 0.0
+        self.sc[S.G_END] = 0.0
+        self.sc[S.N_BOUNCE] = 0.0
+        if ti.static(not self.terrain.has_contact):
+            self._translation_minimum(x)
+        if ti.static(self._has_pairs()):
+            self.pairs.end(x, dt)
+        for i in range(self.n):
+            vi = (self.u[i] - self.u_base[i]) / dt
+            delta = ti.Vector.zero(float, 3)
+            if ti.static(self.terrain.has_contact):
+                delta = self._bounce_split(i, self._bounce(i, vi, x[i]))
+            if ti.static(self._has_pairs()):
+                delta += self.pairs.dv[i]
+            self.v_new[i] = vi
+            self.dv[i] = delta
+            if self._free(i):
+                self.sc[S.K_SOLVE] += 0.5 * m.mass[i] * vi.dot(vi)
+                self.sc[S.G_END] -= m.mass[i] * m.gravity[None].dot(self.u[i])
+
+    @ti.func
+    def _end_finish(self, x: ti.template(), v: ti.template(), step):
+        m = self.model
+        scale = ti.cast(1.0, float)
+        if ti.static(self.terrain.has_contact or self._has_pairs()):
+            self.sc[S.BOUNCE_A] = 0.0
+            self.sc[S.BOUNCE_B] = 0.0
+            for i in range(self.n):
+                delta = self._bounce_total(i)
+                self.dv[i] = delta
+                if self._free(i):
+                    self.sc[S.BOUNCE_A] += 0.5 * m.mass[i] * delta.dot(delta)
+                    self.sc[S.BOUNCE_B] += m.mass[i] * self.v_new[i].dot(delta)
+            lost = self.sc[S.H_START] - (self.sc[S.K_SOLVE] + self.sc[S.G_END] + self.sc[S.E_CUR])
+            scale = self._bounce_scale(lost)
+        self.sc[S.K_END] = 0.0
+        for i in range(self.n):
+            self._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
+            if self._free(i):
+                self.sc[S.K_END] += 0.5 * m.mass[i] * v[i].dot(v[i])
+        # Last resort, counted in stats(): take the excess out of the kinetic energy.
+        excess = self.sc[S.K_END] + self.sc[S.G_END] + self.sc[S.E_CUR] - self.sc[S.H_START]
+        f = ti.cast(1.0, float)
+        noise = self.sc[S.H_SCALE] + self.sc[S.K_END] + ti.abs(self.sc[S.G_END])  # scale of its round-off
+        if self.clamp_on[None] and excess > self.energy_tol[None] * noise:
+            self.ctl[S.CLAMPED] = 1
+            k_end = self.sc[S.K_END]
+            if k_end > 0:
+                f = ti.sqrt(ti.max(k_end - excess, 0.0) / k_end)
+        for i in range(self.n):
+            if f < 1.0 and self._free(i):
+                v[i] *= f
+        self._record_history(x, v)
+        self._account()
+
