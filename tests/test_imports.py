@@ -119,3 +119,12 @@ def test_engine_imports_nothing_of_the_application():
     graph = _graph()
     edges = sorted((a, b) for a, deps in graph.items() if not _is_app(a) for b in deps if _is_app(b))
     assert edges == []
+
+
+MAX_MODULE_LINES = 400  # issue 27: a module a newcomer can read in one sitting
+
+
+def test_no_module_is_over_400_lines():
+    long = {name: n for name, (path, _) in _modules().items()
+            if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert not long, long
