@@ -18,6 +18,7 @@ Damper on particle a (seed):  f_a = -kd ((v_a - v_b) . l) l
 
 import taichi as ti
 
+from .footprint import Buffers, FieldCounts
 from .spring_codes import end_b_spring
 from .rows import SpringRows
 
@@ -72,6 +73,16 @@ def auto_strategy(arch: str, fast_math: bool) -> str:
     if arch != "cpu":
         return "gather"
     return "gather" if fast_math else "scatter"
+
+
+def pass_buffers(strategy: str, counts) -> Buffers:
+    """What a fused ``ForceEvaluator`` of ``strategy`` allocates for ``counts`` (footprint.Counts):
+    scatter: force sums | (k, kd); gather: the padded rows (rows.py), width x (2 ints + 3 reals) per
+    particle. ``per_spring`` is counted as scatter, its close upper bound."""
+    if strategy == "gather":
+        slots = counts.particles * counts.row_width
+        return Buffers(reals=3 * slots, ints=2 * slots)
+    return Buffers(FieldCounts(3, 0, 2, 0))
 
 # Iterations between two slabs of the parallel scatter's loop: at least the largest task Taichi
 # 1.7's CPU backend makes (1024, ``cpu_block_dim_adaptive``), so no task holds two slabs' work.

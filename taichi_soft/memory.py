@@ -2,11 +2,13 @@
 
 ``estimate(scene_data, integrator, precision, arch)`` splits a run's peak resident memory into
 
-* a base: the Python process with numpy and the Taichi runtime, its kernels compiled
-  (``BASE_BYTES``, measured: see below);
-* fields: every Taichi field the model, the state and the integrator allocate, counted per
-  particle and per spring in ``FIELDS`` (``tests/test_memory.py`` checks the table against the
-  fields a real run allocates, so a new field that is not counted here fails a test);
+* a base: the Python process with numpy and the Taichi runtime, its kernels compiled (each
+  integrator's ``BASE_BYTES``, measured: see below);
+* fields: every Taichi field the model and the state allocate (``COMMON``) and what the
+  integrator declares it allocates for the scene's counts (``Integrator.buffers``, with its options
+  resolved by ``Integrator.resolve``, the same call its construction makes; ``tests/test_memory.py``
+  checks the sum against the fields a real run allocates, so a new field that is not declared
+  fails a test). An integrator that is not registered is an error;
 * host arrays the model keeps (``x0_np``, ``v0_np``, ``mass_np``: 56 bytes per particle), the
   surface triangles (O(n^2)), copies made when a state is set in f32, and recorded states.
 
@@ -23,97 +25,30 @@ from __future__ import annotations
 
 import math
 import subprocess
-from dataclasses import dataclass
 
 from . import collision
 from .errors import UserError
+from .footprint import MODEL, STATE, Buffers, Counts
 
-# Peak resident memory [bytes] of a tiny run (n = 3, a few steps) per integrator on this machine's
-# CPU backend: the process, numpy, the Taichi runtime and the compiled kernels. The midpoint of a
-# run that compiles its kernels (empty offline cache) and one that loads them from the cache
-# (MB, cold / warm): semi-implicit Euler 146 / 130, RK4 159 / 134, implicit Euler 206 / 144,
-# fast mass-spring 182 / 146; explicit Euler and midpoint lie between semi-implicit and RK4.
 _MB = 2**20
-BASE_BYTES = {
-    "semi_implicit_euler": 138 * _MB,
-    "explicit_euler": 138 * _MB,
-    "midpoint": 142 * _MB,
-    "rk4": 147 * _MB,
-    "implicit_euler": 175 * _MB,
-    "fast_mass_spring": 164 * _MB,
-}
-BASE_BYTES_OTHER = 175 * _MB  # an integrator not in the table: the largest base above
+# The process base (the Python process with numpy and the Taichi runtime, its kernels compiled) is
+# each integrator's ``BASE_BYTES``. Measured: the peak resident memory of a tiny run (n = 3, a few
+# steps) on this machine's CPU backend, the midpoint of a run that compiles its kernels (empty
+# offline cache) and one that loads them from the cache (MB, cold / warm): semi-implicit Euler
+# 146 / 130, RK4 159 / 134, implicit Euler 206 / 144, fast mass-spring 182 / 146; explicit Euler
+# and midpoint lie between semi-implicit and RK4.
 # GPU backends: not measured here (no GPU on the machine this was written on). Assumed: the
 # CUDA/Vulkan driver adds this much host memory, and the device holds this much besides the
 # fields (context, Taichi's runtime pool).
 GPU_HOST_EXTRA_BYTES = 512 * _MB
 GPU_DEVICE_BASE_BYTES = 1536 * _MB
 
-
-@dataclass(frozen=True)
-class FieldCounts:
-    """Field entries of one run: reals (f32 or f64) and 4-byte ints, per particle and per spring."""
-
-    particle_reals: int = 0
-    particle_ints: int = 0
-    spring_reals: int = 0
-    spring_ints: int = 0
-
-    def __add__(self, other: "FieldCounts") -> "FieldCounts":
-        return FieldCounts(*(a + b for a, b in zip(self.astuple(), other.astuple())))
-
-    def __sub__(self, other: "FieldCounts") -> "FieldCounts":
-        return FieldCounts(*(a - b for a, b in zip(self.astuple(), other.astuple())))
-
-    def astuple(self):
-        return (self.particle_reals, self.particle_ints, self.spring_reals, self.spring_ints)
-
-    def bytes(self, n_particles: int, n_springs: int, real_bytes: int) -> int:
-        return (n_particles * (self.particle_reals * real_bytes + self.particle_ints * 4)
-                + n_springs * (self.spring_reals * real_bytes + self.spring_ints * 4))
-
-
-# Field entries of the model, the state and each integrator together, per force-strategy family
-# (forces.py: "scatter", the CPU default without fast math, reads the model's own springs
-# through slab ranges and needs no adjacency; "gather", the default with fast math and on GPUs,
-# keeps padded spring rows, ``rows_bytes``, and no adjacency). Implicit solvers build the adjacency and no force-pass
-# buffers, whatever the family. Measured from the fields the code allocates at two sizes in f32
-# and f64 (tests/test_memory.py checks the table against the allocation); the source files are
-# the truth. fast_mass_spring's Cholesky factor ("cholesky", _cholesky_values) and its L-BFGS
-# pairs (_lbfgs_reals, as many as its ``history`` option keeps) are counted separately.
-_MODEL = FieldCounts(2, 0, 1, 3)  # mass, inv_mass | rest, ends x2, group
-_ADJACENCY = FieldCounts(0, 2, 2, 6)  # adj_offset, adj_split | per spring end: rest, other, group, code
-_STATE = FieldCounts(6, 0, 0, 0)  # x, v
-_SCATTER = _MODEL + _STATE + FieldCounts(3, 0, 2, 0)  # force sums | (k, kd)
-_GATHER = _MODEL + _STATE  # + the padded rows (rows.py), counted by rows_bytes
-_PING_PONG = FieldCounts(6, 0, 0, 0)  # one-stage methods with gathered forces: second x, v
-_RK_STAGES = FieldCounts(18, 0, 0, 0)  # two stage states, the running sums (midpoint, rk4)
-# Implicit solvers (no force-pass buffers), per particle: the objective's 9 vectors (with the
-# displacements u, u_trial the solve iterates on) and friction block, contact normals, multiplier
-# and its end-of-step value (the next step's warm start), end-of-step velocities (50 reals), the PCG's 4 vectors (12), restitution's prescribed change,
-# right-hand side and response (9), the scheme's base displacement and the last step's end state
-# (9), the active-set flags (3 ints); per spring: damper direction and gradient (6 reals).
-_IMPLICIT = _MODEL + _ADJACENCY + _STATE + FieldCounts(80, 3, 6, 0)
-_IMPLICIT_EULER = _IMPLICIT + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
-_FAST_MASS_SPRING = _IMPLICIT + FieldCounts(1, 0, 0, 0)  # diagonal of M + L (L-BFGS pairs: _lbfgs_reals)
-FIELDS = {
-    ("semi_implicit_euler", "scatter"): _SCATTER,
-    ("explicit_euler", "scatter"): _SCATTER,
-    ("midpoint", "scatter"): _SCATTER + _RK_STAGES,
-    ("rk4", "scatter"): _SCATTER + _RK_STAGES,
-    ("implicit_euler", "scatter"): _IMPLICIT_EULER,
-    ("fast_mass_spring", "scatter"): _FAST_MASS_SPRING,
-    ("semi_implicit_euler", "gather"): _GATHER + _PING_PONG,
-    ("explicit_euler", "gather"): _GATHER + _PING_PONG,
-    ("midpoint", "gather"): _GATHER + _RK_STAGES,
-    ("rk4", "gather"): _GATHER + _RK_STAGES,
-    ("implicit_euler", "gather"): _IMPLICIT_EULER,
-    ("fast_mass_spring", "gather"): _FAST_MASS_SPRING,
-    "cholesky": FieldCounts(3, 2, 0, 0),  # linalg.SkylineCholesky: tmp, start, offset (+ the envelope)
-    "state": _STATE,  # x, v (included in the totals above)
-}
-EXPLICIT = ("semi_implicit_euler", "explicit_euler", "midpoint", "rk4")
-IMPLICIT = ("implicit_euler", "fast_mass_spring")
+# Field entries every run has: the model's and the state's (footprint.MODEL, STATE). What each
+# integrator adds, for the scene's counts and its resolved options, it declares itself
+# (``Integrator.buffers``: the force strategy's buffers, its own fields, a factor, L-BFGS pairs):
+# tests/test_memory.py checks the sum against the fields a real run allocates, so a new field that
+# is not declared fails a test.
+COMMON = MODEL + STATE
 HOST_PARTICLE_BYTES = 56  # model.x0_np, v0_np (float64 vec3) and mass_np (float64)
 
 
@@ -141,6 +76,18 @@ def scene_counts(scene_data: dict) -> tuple[int, int]:
     return n_p, n_s
 
 
+def counts(scene_data: dict) -> Counts:
+    """The scene's ``footprint.Counts``. The Cholesky envelope and the rows' width are the bodies'
+    cubes' (a mesh body fills part of its n^3 cube, numbered in the same order: its envelope is
+    smaller)."""
+    from .lattice import envelope_size
+    from .rows import lattice_width
+
+    bodies = [int(b["n"]) for b in scene_data["body"]]
+    return Counts(*scene_counts(scene_data), envelope=lambda: sum(envelope_size(n) for n in bodies),
+                  row_width=lambda: max(lattice_width(n) for n in bodies))
+
+
 def _surface_host_bytes(scene_data: dict) -> int:
     """Host bytes of the bodies' surfaces: a cube's 12 (n-1)^2 triangles as int64 triples; a mesh
     body's triangles (int64, twice: the mesh's and ``BodyInfo.surface``), vertices (float64) and
@@ -156,83 +103,18 @@ def _surface_host_bytes(scene_data: dict) -> int:
     return total
 
 
-def _cholesky_values(scene_data: dict, integrator: str, arch: str) -> int:
-    """Values of fast_mass_spring's skyline Cholesky factor, 0 when it solves with PCG only."""
-    if integrator != "fast_mass_spring":
-        return 0
-    from .integrators.implicit import CHOLESKY_AUTO_MAX
-    from .lattice import envelope_size
+def integrator_buffers(scene_data: dict, integrator: str, arch: str, real_bytes: int, fast_math: bool = True,
+                       sizes: Counts | None = None) -> Buffers:
+    """What the registered integrator ``integrator`` allocates for this scene, as it declares it:
+    its options (the scene's ``[solver]`` table, those it has) resolved for ``arch`` and the
+    counts, then its ``buffers``. An unregistered name is a ``UserError``."""
+    from .integrators import integrator_class  # imports Taichi: only once the CLI has set it up quietly
 
-    solver = scene_data.get("solver", {}).get("global_solver", "auto")
-    if solver == "pcg" or (solver == "auto" and arch != "cpu"):
-        return 0
-    # A mesh body fills part of its n^3 cube, numbered in the same order: its envelope is smaller.
-    nnz = sum(envelope_size(int(b["n"])) for b in scene_data["body"])
-    return nnz if solver == "cholesky" or nnz <= CHOLESKY_AUTO_MAX else 0
-
-
-def _lbfgs_reals(scene_data: dict, integrator: str) -> int:
-    """Per-particle reals of fast_mass_spring's L-BFGS pairs: 6 per pair kept (s, y), 6 for the
-    iterate and rhs it saves; 0 with ``history = 0``."""
-    if integrator != "fast_mass_spring":
-        return 0
-    from .integrators.implicit.options import LOCAL_GLOBAL
-
-    history = scene_data.get("solver", {}).get("history", LOCAL_GLOBAL["history"].default)
-    return 6 * history + 6 if history else 0
-
-
-def _envelope_transient(scene_data: dict, integrator: str, n_p: int, n_s: int, real: int) -> int:
-    """Host bytes above the fields while fast_mass_spring sizes its Cholesky envelope (CPU backend).
-
-    It downloads the spring ends (8 bytes per spring) and takes their min and max (4 + 4), with
-    per-particle starts (16 bytes), after the implicit base fields are allocated and before its
-    own buffers and the state are: the peak is the larger of the two moments.
-    """
-    if integrator != "fast_mass_spring" or scene_data.get("solver", {}).get("global_solver", "auto") == "pcg":
-        return 0
-    later = (FIELDS[("fast_mass_spring", "scatter")] - _MODEL).bytes(n_p, n_s, real)
-    return max(0, 16 * n_s + 16 * n_p - later)
-
-
-def force_family(scene_data: dict, arch: str, fast_math: bool = True) -> str:
-    """"scatter" or "gather": which force strategy (forces.py) a run's ``[solver] forces``,
-    backend and fast-math setting pick (``per_spring`` is counted as scatter, its close upper bound)."""
-    from .forces import auto_strategy  # imports Taichi: only once the CLI has set it up quietly
-
-    forces = scene_data.get("solver", {}).get("forces", "auto")
-    if forces == "auto":
-        forces = auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math)
-    return "gather" if forces == "gather" else "scatter"
-
-
-def rows_bytes(scene_data: dict, n_p: int, real: int) -> int:
-    """The gather strategy's padded spring rows (rows.py): width x (2 ints + 3 reals) per particle."""
-    from .rows import lattice_width
-
-    width = max(lattice_width(int(b["n"])) for b in scene_data["body"])
-    return n_p * width * (2 * 4 + 3 * real)
-
-
-def field_counts(integrator: str, family: str = "scatter", cholesky: bool = False) -> FieldCounts:
-    """Per-particle and per-spring field entries of the model, state and ``integrator`` with the
-    force strategy ``family``; ``cholesky``: with the factor's index fields (its values are counted
-    by ``_cholesky_values``). A registered subclass of a method in ``FIELDS`` (one that changes its
-    steps, not its fields) counts as that method; any other integrator is an error: its memory is
-    not known, and another method's numbers would pass a run the machine cannot hold."""
-    from .integrators import REGISTRY
-
-    cls = REGISTRY.get(integrator)
-    for name in [integrator] + ([c.name for c in cls.__mro__ if hasattr(c, "name")] if cls else []):
-        if (name, family) in FIELDS:
-            break
-    else:
-        raise KeyError(f"memory.FIELDS has no entry for integrator {integrator!r} ({family} forces): add its "
-                       "field counts (tests/test_memory.py measures them)")
-    counts = FIELDS[(name, family)]
-    if cholesky:
-        counts = counts + FIELDS["cholesky"]
-    return counts
+    cls = integrator_class(integrator)
+    c = sizes or counts(scene_data)
+    given = {k: v for k, v in scene_data.get("solver", {}).items() if k in cls.OPTIONS}
+    options = cls.resolve(cls.parse_options(given), arch, fast_math, c)
+    return cls.buffers(options, arch, c, real_bytes)
 
 
 def resolve_arch(arch: str) -> str:
@@ -254,24 +136,24 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     """
     names = [scene_data["sim"]["integrator"]] if integrator is None else (
         [integrator] if isinstance(integrator, str) else list(integrator))
+    from .integrators import integrator_class  # imports Taichi: only once the CLI has set it up quietly
+
+    classes = [integrator_class(name) for name in names]
     arch = resolve_arch(arch)
     real = 8 if precision == "f64" else 4
-    n_p, n_s = scene_counts(scene_data)
-    family = force_family(scene_data, arch, fast_math)
+    c = counts(scene_data)
+    n_p, n_s = c.particles, c.springs
+    buffers = [integrator_buffers(scene_data, name, arch, real, fast_math, c) for name in names]
     fields = 0
-    for name in names:
-        nnz = _cholesky_values(scene_data, name, arch)
-        fields += field_counts(name, family, nnz > 0).bytes(n_p, n_s, real) + nnz * real
-        if family == "gather" and name not in IMPLICIT:
-            fields += rows_bytes(scene_data, n_p, real)
-        fields += _lbfgs_reals(scene_data, name) * n_p * real
+    for b in buffers:
+        fields += COMMON.bytes(n_p, n_s, real) + b.bytes(n_p, n_s, real)
         fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
     if len(scene_data["body"]) > 1:  # body-body contact: one per simulation, and the implicit pair terms
         from .integrators.implicit import pairs
 
         fields += len(names) * collision.field_bytes(n_p, real)
-        fields += sum(pairs.field_bytes(n_p, real) for name in names if name in IMPLICIT)
-    base = max(BASE_BYTES.get(name, BASE_BYTES_OTHER) for name in names)
+        fields += sum(pairs.field_bytes(n_p, real) for cls in classes if cls.implicit)
+    base = max(cls.BASE_BYTES for cls in classes)
     host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + _surface_host_bytes(scene_data))
     if real == 4:
         host += n_p * 2 * 3 * real  # State.set converts the float64 x0_np, v0_np to f32 copies
@@ -282,7 +164,7 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
         host += 2 * frames * n_p * 2 * 3 * real  # the frames kept, and their stacked copy when written
     device = 0
     if arch == "cpu":
-        host += fields + max(_envelope_transient(scene_data, name, n_p, n_s, real) for name in names)
+        host += fields + max(b.transient for b in buffers)
     else:
         host += GPU_HOST_EXTRA_BYTES
         device = GPU_DEVICE_BASE_BYTES + fields

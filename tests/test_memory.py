@@ -42,8 +42,9 @@ def _field_bytes(f) -> int:
 
 
 def test_field_table_matches_allocated_fields():
-    """memory.FIELDS counts every field whose size grows with the body, for every integrator
-    (n = 8: a missing per-particle float would be 4 KB, more than all fixed-size fields together)."""
+    """memory.COMMON and each integrator's declared buffers (Integrator.buffers) count every field
+    whose size grows with the body, for every integrator (n = 8: a missing per-particle float would
+    be 4 KB, more than all fixed-size fields together)."""
     from taichi_soft.forces import Diagnostics
     from taichi_soft.integrators import make_integrator, names
     from taichi_soft.lattice import envelope_size
@@ -118,5 +119,7 @@ def test_check_fits_and_available(monkeypatch):
 
 
 def test_an_integrator_without_field_counts_is_an_error_not_another_methods_numbers():
-    with pytest.raises(KeyError, match="no entry for integrator 'toy'"):
-        memory.field_counts("toy")
+    from taichi_soft.errors import UserError
+
+    with pytest.raises(UserError, match="unknown integrator 'toy'"):
+        memory.estimate(load_scene("plane").data, "toy", "f64", "cpu")

@@ -6,7 +6,7 @@ from . import explicit  # noqa: F401  (registers the explicit family)
 from . import implicit  # noqa: F401  (registers implicit_euler, fast_mass_spring)
 from .base import REGISTRY, Integrator, register
 
-__all__ = ["REGISTRY", "Integrator", "register", "make_integrator", "names"]
+__all__ = ["REGISTRY", "Integrator", "register", "make_integrator", "integrator_class", "names"]
 
 
 def names() -> list[str]:
@@ -14,12 +14,16 @@ def names() -> list[str]:
     return list(REGISTRY)
 
 
-def make_integrator(name: str, model, terrain, options: dict | None = None, contacts=None) -> Integrator:
-    """Instantiate the integrator called ``name`` (``contacts``: the simulation's
-    ``collision.BodyContacts``, or None for one body); unknown names raise ``UserError`` listing
+def integrator_class(name: str) -> type:
+    """The registered integrator class called ``name``; unknown names raise ``UserError`` listing
     the valid ones."""
     try:
-        cls = REGISTRY[name]
+        return REGISTRY[name]
     except KeyError:
         raise UserError(f"unknown integrator {name!r}; choose one of: {', '.join(REGISTRY)}") from None
-    return cls(model, terrain, options, contacts)
+
+
+def make_integrator(name: str, model, terrain, options: dict | None = None, contacts=None) -> Integrator:
+    """Instantiate the integrator called ``name`` (``contacts``: the simulation's
+    ``collision.BodyContacts``, or None for one body); unknown names raise ``UserError``."""
+    return integrator_class(name)(model, terrain, options, contacts)

@@ -24,7 +24,9 @@ first diverged step index.
 import taichi as ti
 
 from ..errors import UserError
-from ..forces import ForceEvaluator, auto_strategy
+from ..footprint import Buffers, Counts, FieldCounts
+from ..forces import ForceEvaluator, auto_strategy, pass_buffers
+from ..linalg import SkylineCholesky
 from .options import Option, one_of
 
 # Parallel launches win above this many particles on a CPU. Implicit solvers (many launches per
@@ -37,17 +39,27 @@ NOT_DIVERGED = 2**31 - 1
 # The divergence check (the assignment's): a step diverged if a velocity is non-finite or its
 # |v|^2 exceeds this [m^2/s^2] (1000 m/s).
 DIVERGENCE_SPEED2 = 1e6
+MB = 2**20
+PING_PONG = FieldCounts(6, 0, 0, 0)  # the second x, v of ping-pong steps (_use_ping_pong)
 
 
 @ti.data_oriented
 class Integrator:
-    """Base class. Subclasses set ``name``, ``order``, ``force_evals`` and ``_step_body(x, v, dt, step)``."""
+    """Base class. Subclasses set ``name``, ``order``, ``force_evals`` and ``_step_body(x, v, dt, step)``;
+    they declare what they allocate in ``FIELDS`` (per particle and spring, beyond the force pass)
+    or, where it depends on their options, by extending ``buffers``; options with an ``auto``
+    value of their own become concrete in ``resolve``."""
 
     name = "base"
     order = 0  # global order of accuracy in dt (smooth problems)
     force_evals = 0  # force evaluations per step
     implicit = False
     description = ""
+    FIELDS = FieldCounts()  # the integrator's own fields, per particle and per spring (memory.estimate)
+    # Peak resident memory [bytes] of a tiny run (n = 3, a few steps) on a CPU backend: the process,
+    # numpy, the Taichi runtime and the compiled kernels; the midpoint of a run that compiles its
+    # kernels (empty offline cache) and one that loads them (memory.py). Not measured: the largest.
+    BASE_BYTES = 175 * MB
     # Options a scene's [solver] table (or --set solver.NAME=VALUE) may set (options.Option);
     # subclasses extend it.
     OPTIONS = {
@@ -64,7 +76,7 @@ class Integrator:
         self.model = model
         self.terrain = terrain
         self.n = model.n_particles
-        self.options = self.parse_options(options or {})
+        self.options = self.resolve(self.parse_options(options or {}), *running_target(), model_counts(model))
         self.speed2_limit = ti.field(float, ())  # divergence threshold on |v|^2 [m^2/s^2]
         self.speed2_limit[None] = DIVERGENCE_SPEED2
         self.diverged_step = ti.field(ti.i32, ())
@@ -97,6 +109,39 @@ class Integrator:
                 raise UserError(f"solver.{name} = {value!r}: must be {option.allowed} ({option.doc})")
             out[name] = value
         return out
+
+    @classmethod
+    def resolve(cls, options: dict, arch: str, fast_math: bool, counts: Counts) -> dict:
+        """``options`` (parsed) with every ``auto`` made concrete for backend ``arch`` ("cpu" or a GPU
+        backend's name), the ``fast_math`` setting and the scene's ``counts``: the one place these
+        choices are made, for the integrator's construction and for ``memory.estimate`` alike.
+        Subclasses with ``auto`` options of their own extend it."""
+        out = dict(options)
+        cpu = arch == "cpu"
+        if out["mode"] == "auto":
+            limit = SERIAL_MAX_PARTICLES if cls.implicit else SERIAL_MAX_PARTICLES_EXPLICIT
+            out["mode"] = "serial" if cpu and counts.particles <= limit else "parallel"
+        if out["forces"] == "auto":
+            out["forces"] = auto_strategy("cpu" if cpu else "gpu", fast_math)
+        return out
+
+    @classmethod
+    def buffers(cls, options: dict, arch: str, counts: Counts, real_bytes: int) -> Buffers:
+        """What this integrator allocates for ``counts`` with ``options`` (resolved), besides the
+        model's and the state's fields: the force pass's buffers (explicit methods), ``FIELDS``,
+        and the second state of ping-pong steps. tests/test_memory.py checks it against the fields
+        a real integrator allocates."""
+        out = Buffers(cls.FIELDS)
+        if not cls.implicit:
+            out = out + pass_buffers(options["forces"], counts)
+        if cls.uses_ping_pong(options):
+            out = out + Buffers(PING_PONG)
+        return out
+
+    @classmethod
+    def uses_ping_pong(cls, options: dict) -> bool:
+        """Whether steps with these (resolved) options go through ``_step_into`` and a second state."""
+        return False
 
     # -- public API ------------------------------------------------------------------
     def advance(self, state, dt: float, n_steps: int) -> int:
@@ -169,16 +214,10 @@ class Integrator:
 
     # -- launch strategies ------------------------------------------------------------------
     def _force_strategy(self) -> str:
-        if self.options["forces"] != "auto":
-            return self.options["forces"]
-        cfg = ti.lang.impl.current_cfg()
-        return auto_strategy("cpu" if cfg.arch in (ti.x64, ti.arm64) else "gpu", cfg.fast_math)
+        return self.options["forces"]  # resolved
 
     def _serial(self) -> bool:
-        if self.mode == "auto":
-            limit = SERIAL_MAX_PARTICLES if self.implicit else SERIAL_MAX_PARTICLES_EXPLICIT
-            return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64) and self.n <= limit
-        return self.mode == "serial"
+        return self.mode == "serial"  # resolved
 
     @ti.kernel
     def _advance_serial(self, x: ti.template(), v: ti.template(), dt: float, start: ti.i32, n_steps: ti.i32):
@@ -274,6 +313,18 @@ def _not_finite(s):
         return ((ti.bit_cast(s, ti.i64) >> 52) & 0x7FF) == 0x7FF
     else:
         return ((ti.bit_cast(s, ti.i32) >> 23) & 0xFF) == 0xFF
+
+
+def running_target() -> tuple[str, bool]:
+    """(arch, fast_math) of the running Taichi, as ``Integrator.resolve`` takes them."""
+    cfg = ti.lang.impl.current_cfg()
+    return ("cpu" if cfg.arch in (ti.x64, ti.arm64) else "gpu"), bool(cfg.fast_math)
+
+
+def model_counts(model) -> Counts:
+    """The ``Counts`` of a built model (the envelope read from its springs, only if asked for)."""
+    return Counts(model.n_particles, model.n_springs,
+                  envelope=lambda: SkylineCholesky.envelope_size(model.n_particles, model.pairs_np))
 
 
 REGISTRY: dict[str, type] = {}

@@ -15,7 +15,8 @@ state itself (``Integrator.ping_pong``).
 
 import taichi as ti
 
-from .base import Integrator, register
+from ..footprint import Buffers, FieldCounts
+from .base import MB, Integrator, register
 
 
 @ti.data_oriented
@@ -32,12 +33,9 @@ class ExplicitRungeKutta(Integrator):
     def __init__(self, model, terrain, options=None, contacts=None):
         super().__init__(model, terrain, options, contacts)
         stages = len(self.b)
-        # One stage with gathered forces reads the old state while writing the new: ping-pong.
-        if stages == 1 and self.forces.strategy == "gather":
+        if self.uses_ping_pong(self.options):
             self._use_ping_pong()
-        # Stage derivatives k_j kept only where a stage after the next one still needs them
-        # (none of the tableaus here: each stage uses only the one before it).
-        self._kept = [any(self._a(t, j) != 0 for t in range(j + 2, stages)) for j in range(stages)]
+        self._kept = self._kept_stages()
         self.kx = [ti.Vector.field(3, float, self.n) if self._kept[j] else None for j in range(stages)]
         self.kv = [ti.Vector.field(3, float, self.n) if self._kept[j] else None for j in range(stages)]
         # Two stage-state buffers (stage s reads buffer s % 2 ... written by stage s - 1) and
@@ -48,8 +46,28 @@ class ExplicitRungeKutta(Integrator):
         self.x_acc = ti.Vector.field(3, float, self.n) if two else None
         self.v_acc = ti.Vector.field(3, float, self.n) if two else None
 
-    def _a(self, s, j):
-        return self.A[s][j] if j < len(self.A[s]) else 0.0
+    @classmethod
+    def _a(cls, s, j):
+        return cls.A[s][j] if j < len(cls.A[s]) else 0.0
+
+    @classmethod
+    def _kept_stages(cls) -> list[bool]:
+        """Stage derivatives k_j kept only where a stage after the next one still needs them
+        (none of the tableaus here: each stage uses only the one before it)."""
+        stages = len(cls.b)
+        return [any(cls._a(t, j) != 0 for t in range(j + 2, stages)) for j in range(stages)]
+
+    @classmethod
+    def uses_ping_pong(cls, options: dict) -> bool:
+        """One stage with gathered forces reads the old state while writing the new: ping-pong."""
+        return len(cls.b) == 1 and options["forces"] == "gather"
+
+    @classmethod
+    def buffers(cls, options, arch, counts, real_bytes) -> Buffers:
+        """The force pass's and ping-pong buffers (``Integrator.buffers``), the kept stage derivatives
+        kx, kv, and with two stages or more the two stage states and the running sums."""
+        stages = 6 * sum(cls._kept_stages()) + (18 if len(cls.b) > 1 else 0)
+        return super().buffers(options, arch, counts, real_bytes) + Buffers(FieldCounts(stages))
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
@@ -119,6 +137,7 @@ class ExplicitEuler(ExplicitRungeKutta):
     """x_{n+1} = x_n + dt v_n;  v_{n+1} = v_n + dt a(x_n, v_n). First order."""
 
     name = "explicit_euler"
+    BASE_BYTES = 138 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 1
     force_evals = 1
     description = "forward Euler: both updates from the start-of-step state (1 force eval)"
@@ -132,14 +151,20 @@ class SemiImplicitEuler(Integrator):
     """v_{n+1} = v_n + dt a(x_n, v_n);  x_{n+1} = x_n + dt v_{n+1}. First order, symplectic."""
 
     name = "semi_implicit_euler"
+    BASE_BYTES = 138 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 1
     force_evals = 1
     description = "symplectic Euler: velocity first, then position with the new velocity (1 force eval)"
 
     def __init__(self, model, terrain, options=None, contacts=None):
         super().__init__(model, terrain, options, contacts)
-        if self.forces.strategy == "gather":
+        if self.uses_ping_pong(self.options):
             self._use_ping_pong()
+
+    @classmethod
+    def uses_ping_pong(cls, options: dict) -> bool:
+        """Gathered forces read the old state while the step writes the new: ping-pong."""
+        return options["forces"] == "gather"
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
@@ -160,6 +185,7 @@ class Midpoint(ExplicitRungeKutta):
     """Explicit midpoint: slope evaluated at y_n + dt/2 f(y_n). Second order."""
 
     name = "midpoint"
+    BASE_BYTES = 142 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 2
     force_evals = 2
     description = "explicit midpoint (RK2): slope at the half-step state (2 force evals)"
@@ -173,6 +199,7 @@ class RK4(ExplicitRungeKutta):
     """Classic fourth-order Runge-Kutta."""
 
     name = "rk4"
+    BASE_BYTES = 147 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 4
     force_evals = 4
     description = "classic Runge-Kutta, fourth order (4 force evals)"

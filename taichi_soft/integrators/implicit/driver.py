@@ -22,6 +22,7 @@ and the parallel driver (``parallel.py``, one launch per phase) only sequence th
 import numpy as np
 import taichi as ti
 
+from ...footprint import ADJACENCY, FieldCounts
 from ...model import CHANGED_MASSES
 from ..base import Integrator
 from . import slots as S
@@ -49,6 +50,13 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     implicit = True
     order = 1
     force_evals = 0
+    # No force-pass buffers; the model's adjacency, and per particle: the objective's 9 vectors (with
+    # the displacements u, u_trial the solve iterates on) and friction block, contact normals,
+    # multiplier and its end-of-step value (the next step's warm start), end-of-step velocities (50
+    # reals), the PCG's 4 vectors (12), restitution's prescribed change, right-hand side and response
+    # (9), the scheme's base displacement and the last step's end state (9), the active-set flags
+    # (3 ints); per spring: damper direction and gradient (6 reals).
+    FIELDS = ADJACENCY + FieldCounts(80, 3, 6, 0)
 
     def __init__(self, model, terrain, options=None, contacts=None):
         super().__init__(model, terrain, options, contacts)

@@ -11,24 +11,48 @@ two-level preconditioner for ``implicit_euler``'s PCG: 3-4x fewer CG iterations,
 
 import taichi as ti
 
+from ...footprint import STATE, Buffers, FieldCounts
 from ...linalg import SkylineCholesky
 from ...model import CHANGED_MASSES, CHANGED_SPRINGS
 
 CHOLESKY_AUTO_MAX = 10_000_000  # largest factor envelope [values] an "auto" option factorises
+CHOLESKY_INDEX = FieldCounts(3, 2, 0, 0)  # linalg.SkylineCholesky: tmp, start, offset (+ the envelope's values)
 
 
-def cholesky_pays(model) -> bool:
-    """Whether "auto" factorises A: on a CPU (the triangular solves are serial, so on a GPU PCG
-    wins) while the envelope holds at most CHOLESKY_AUTO_MAX values. The envelope grows like
-    N^(5/3) for a cube (N particles), factorising like N^(7/3): the 20^3 cube has 6.4e6 values;
-    the 40^3 one 2e8, 1.6 GB in f64 and an hour-long factorisation."""
-    cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
-    return cpu and SkylineCholesky.envelope_size(model.n_particles, model.pairs_np) <= CHOLESKY_AUTO_MAX
+def cholesky_pays(arch: str, counts) -> bool:
+    """Whether "auto" factorises A on backend ``arch`` for ``counts`` (footprint.Counts): on a CPU
+    (the triangular solves are serial, so on a GPU PCG wins) while the envelope holds at most
+    CHOLESKY_AUTO_MAX values (asked for only on a CPU). The envelope grows like N^(5/3) for a cube
+    (N particles), factorising like N^(7/3): the 20^3 cube has 6.4e6 values; the 40^3 one 2e8,
+    1.6 GB in f64 and an hour-long factorisation."""
+    return arch == "cpu" and counts.envelope <= CHOLESKY_AUTO_MAX
 
 
 @ti.data_oriented
 class LaplacianMatrix:
-    """Mixin of the implicit integrators: the fields of A = M + L and its factorisation."""
+    """Mixin of the implicit integrators: the fields of A = M + L and its factorisation, chosen by
+    the ``global_solver`` option."""
+
+    @classmethod
+    def resolve(cls, options, arch, fast_math, counts):
+        """``global_solver = auto``: cholesky where it pays (``cholesky_pays``), else pcg."""
+        out = super().resolve(options, arch, fast_math, counts)
+        if out["global_solver"] == "auto":
+            out["global_solver"] = "cholesky" if cholesky_pays(arch, counts) else "pcg"
+        return out
+
+    @classmethod
+    def buffers(cls, options, arch, counts, real_bytes):
+        """The factor (index fields, the envelope's values) when it factorises; and the host bytes
+        above the fields while the envelope is sized: the downloaded spring ends (8 bytes per
+        spring), their min and max (4 + 4) and per-particle starts (16 bytes), at a moment after the
+        model's fields and before the integrator's own and the state's, so only what exceeds those
+        (counted whatever the choice, as ``auto`` sizes it to choose: 0 for every lattice)."""
+        out = super().buffers(options, arch, counts, real_bytes)
+        if options["global_solver"] == "cholesky":
+            out = out + Buffers(CHOLESKY_INDEX, reals=counts.envelope)
+        later = (cls.FIELDS + STATE).bytes(counts.particles, counts.springs, real_bytes)
+        return out + Buffers(transient=max(0, 16 * counts.springs + 16 * counts.particles - later))
 
     def _init_laplacian(self, model, factorise: bool):
         self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]

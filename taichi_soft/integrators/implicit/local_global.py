@@ -16,12 +16,13 @@ its stopping tests apply as for Newton.
 
 import taichi as ti
 
+from ...footprint import Buffers, FieldCounts
 from ...linalg import PCG
-from ..base import register
+from ..base import MB, model_counts, register, running_target
 from . import options as opt
 from . import slots as S
 from .driver import ImplicitIntegrator
-from .laplacian import LaplacianMatrix, cholesky_pays
+from .laplacian import LaplacianMatrix
 
 
 @register
@@ -32,13 +33,20 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     name = "fast_mass_spring"
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
     OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.LOCAL_GLOBAL}
+    FIELDS = ImplicitIntegrator.FIELDS + FieldCounts(1, 0, 0, 0)  # diagonal of M + L
+    BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
+
+    @classmethod
+    def buffers(cls, options, arch, counts, real_bytes):
+        """Besides the factor's (``LaplacianMatrix.buffers``): the L-BFGS pairs, 6 reals per particle
+        per pair kept (s, y) and 6 for the iterate and rhs it saves (none with ``history = 0``)."""
+        history = options["history"]
+        return super().buffers(options, arch, counts, real_bytes) + Buffers(FieldCounts(6 * history + 6 if history else 0))
 
     def __init__(self, model, terrain, options=None, contacts=None):
         n = model.n_particles
-        chosen = self.parse_options(options or {})
+        chosen = self.resolve(self.parse_options(options or {}), *running_target(), model_counts(model))
         solver = chosen["global_solver"]
-        if solver == "auto":
-            solver = "cholesky" if cholesky_pays(model) else "pcg"
         self.global_solver = solver
         # Fixed at construction (an option), so a compile-time constant.
         self.scaled_contact = solver == "cholesky" and chosen["contact_solve"] == "scaled"
@@ -61,7 +69,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             self.lb_x = ti.Vector.field(3, float, n)  # the iterate of the last direction, as u = x - x_n [m]
             self.lb_r = ti.Vector.field(3, float, n)  # its rhs [kg m]
             self.lb_dot = ti.field(float, ())
-        super().__init__(model, terrain, options, contacts)
+        super().__init__(model, terrain, chosen, contacts)  # resolved: nothing left to choose there
 
     def _tol(self):
         return self.options["tol"]

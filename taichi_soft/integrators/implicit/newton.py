@@ -9,9 +9,10 @@ term by default. Line search, contact and stopping are the shared driver's (driv
 
 import taichi as ti
 
+from ...footprint import FieldCounts
 from ...linalg import PCG
 from ...model import code_spring
-from ..base import register
+from ..base import MB, register
 from . import options as opt
 from . import slots as S
 from .driver import ImplicitIntegrator
@@ -25,6 +26,8 @@ class ImplicitEuler(ImplicitIntegrator):
     name = "implicit_euler"
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
     OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.NEWTON}
+    FIELDS = ImplicitIntegrator.FIELDS + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
+    BASE_BYTES = 175 * MB  # measured (memory.py): process, runtime, compiled kernels
 
     def __init__(self, model, terrain, options=None, contacts=None):
         n, m = model.n_particles, max(model.n_springs, 1)
