@@ -53,21 +53,10 @@ class Timing:
     cpu: list = field(default_factory=list)
     last: object = None
 
-    @property
-    def repeats(self) -> int:
-        return len(self.wall)
-
-    @property
-    def median(self) -> float:
-        return statistics.median(self.wall)
-
-    @property
-    def min(self) -> float:
-        return min(self.wall)
-
-    @property
-    def cpu_median(self) -> float:
-        return statistics.median(self.cpu)
+    repeats = property(lambda self: len(self.wall))
+    median = property(lambda self: statistics.median(self.wall))  # [s]
+    min = property(lambda self: min(self.wall))  # [s]
+    cpu_median = property(lambda self: statistics.median(self.cpu))  # [s] of process CPU time
 
 
 def time_candidates(candidates: dict[str, Candidate], repeats: int, rotate: bool = True,
