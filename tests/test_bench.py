@@ -75,29 +75,30 @@ def test_work_precision_orders_on_the_smooth_case():
     assert all(r["force_evals"] == stages[r["integrator"]] * r["steps"] for r in rows)
 
 
-@pytest.mark.parametrize("precision", ["f64"])
-def test_numpy_and_warp_references_agree_with_engine(precision):
-    """The speed study compares like with like: the same steps give the same final state."""
-    from taichi_soft.bench.speed import compare_references
-
-    r = compare_references(4, precision, chunk=50, repeats=1)
-    assert r["max_abs_diff_numpy"] < 1e-12
-    assert "max_abs_diff_warp" in r, "warp-lang (requirements.txt) is not installed: the Warp baseline is unchecked"
-    assert r["max_abs_diff_warp"] < 1e-12
-
-
-def test_yardstick_reference_agrees_with_engine():
-    """The plain-Taichi yardstick row of the speed study takes the engine's steps (f64 rounding)."""
-    from taichi_soft.bench.references import YardstickStepper
+@pytest.mark.parametrize("kind", ["numpy", "warp", "yardstick"])
+def test_references_of_the_speed_study_take_the_engines_steps(kind):
+    """The speed study compares like with like: numpy, Warp and the plain-Taichi yardstick take
+    the engine's semi-implicit steps from the same state to the same final state (f64 rounding)."""
+    from taichi_soft.bench import references
     from taichi_soft.bench.speed_worker import REFERENCE_SCENE
     from taichi_soft.scene import load_scene
     from taichi_soft.simulation import Simulation
 
     sim = Simulation(load_scene("plane", ["body.0.n=4", *REFERENCE_SCENE]), integrator="semi_implicit_euler")
-    ys = YardstickStepper(sim.model, sim.model.x0_np, sim.model.v0_np, sim.dt)
-    sim.advance(20)
-    ys.step(20)
-    x, v = ys.numpy()
+    args = (sim.model, sim.model.x0_np, sim.model.v0_np, sim.dt)
+    if kind == "numpy":
+        ref = references.NumpyStepper(*args)
+        state = lambda: (ref.x, ref.v)  # noqa: E731
+    elif kind == "warp":
+        assert references.warp_available(), "warp-lang (requirements.txt) is not installed: the Warp baseline is unchecked"
+        ref = references.WarpStepper(*args)
+        state = ref.numpy
+    else:
+        ref = references.YardstickStepper(*args)
+        state = ref.numpy
+    sim.advance(50)
+    ref.step(50)
+    x, v = state()
     assert np.abs(x - sim.state.x.to_numpy()).max() < 1e-12
     assert np.abs(v - sim.state.v.to_numpy()).max() < 1e-9
     assert np.abs(x - sim.model.x0_np).max() > 1e-4  # it moved

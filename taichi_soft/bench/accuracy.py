@@ -3,19 +3,18 @@
 Error is the RMS particle position error [m] against a reference solution (RK4, f64, fast math
 off, at a step 10 times smaller than the smallest swept), at the final time and over the whole
 trajectory (sampled at ``frames`` evenly spaced times). Cost is wall time (warm-up first,
-``ti.sync()``, minimum of repeats) and, independent of the machine, force evaluations.
+``ti.sync()``, minimum of repeats: ``timing.time_one``) and, independent of the machine, force evaluations.
 """
 from __future__ import annotations
 
 import json
 import math
-import time
 
 import numpy as np
-import taichi as ti
 
 from ..scene import load_scene
 from ..simulation import Simulation
+from .timing import time_one
 
 # The two cases of the work-precision study: (scene, overrides, end time [s]).
 CASES = {
@@ -98,19 +97,14 @@ def measure_integrator(case: str, name: str, dts, ref, dt_ref: float, frames: in
 
 
 def _measure(sim, case, name, dt, t_end, frames, repeats, ref, dt_ref) -> dict:
-    best = math.inf
-    traj, diverged = None, False
-    for _ in range(repeats):
+    def setup():
         sim.reset()
         sim.set_dt(dt)
         sim.integrator.stats()  # start the solver counters afresh
-        ti.sync()
-        t0 = time.perf_counter()
-        traj, diverged = trajectory(sim, t_end, frames)
-        ti.sync()
-        best = min(best, time.perf_counter() - t0)
-        if diverged:
-            break
+
+    # the minimum of the repeats (the least disturbed run), not the median
+    t = time_one(lambda: trajectory(sim, t_end, frames), repeats, setup=setup, done=lambda r: r[1])
+    best, (traj, diverged) = t.min, t.last
     steps = int(round(t_end / dt))
     stats = sim.integrator.stats()
     row = {"case": case, "integrator": name, "dt": dt, "steps": steps, "wall_s": best, "diverged": diverged,

@@ -5,6 +5,11 @@ at ti.init), so each runs in a worker process (``speed_worker``) that builds its
 and warms up, then times one repeat whenever the coordinator (``equal_settings`` here) asks. The
 coordinator asks the workers in turn, round after round (one running at a time), so slow drifts of
 the machine's load hit every configuration alike and the ratios come from one run.
+
+Why not tasks (``taichi_soft.tasks``, the benchmarks' worker protocol elsewhere): a task runs one
+function to completion in a fresh process and returns its value; interleaving needs every
+configuration's process alive, compiled and warmed up, between its repeats. So the coordinator
+talks to live workers, one JSON line per request on their stdin and stdout (``speed_worker``).
 """
 from __future__ import annotations
 

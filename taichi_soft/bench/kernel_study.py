@@ -20,10 +20,10 @@ results and the generated code behind them (``ti.init(print_kernel_asm=True)``).
 
 import argparse
 import os
-import statistics
-import time
 
 import numpy as np
+
+from .timing import Candidate, time_candidates
 
 VARIANTS = ("yardstick", "csr_branch", "csr", "rows", "rows_lookup")
 
@@ -131,29 +131,18 @@ def main(argv=None) -> int:
         sim = sim_for(forces)
         runs[f"engine {forces}"] = (sim.reset, sim.advance)
     chunk = max(4, int(2e7 / (a.n ** 3 * 13)) // 2 * 2)
-    for reset, advance in runs.values():
-        advance(2)
-    ti.sync()
-    wall = {k: [] for k in runs}
-    cpu = {k: [] for k in runs}
+    # interleaved, order rotated each round; medians of wall and CPU seconds
+    timings = time_candidates({name: Candidate(lambda adv=advance: adv(chunk), setup=reset,
+                                               warmup=lambda adv=advance: adv(2))
+                               for name, (reset, advance) in runs.items()}, a.rounds)
     names = list(runs)
-    for r in range(a.rounds):
-        for name in names[r % len(names):] + names[:r % len(names)]:
-            reset, advance = runs[name]
-            reset()
-            ti.sync()
-            c0, t0 = time.process_time(), time.perf_counter()
-            advance(chunk)
-            ti.sync()
-            wall[name].append(time.perf_counter() - t0)
-            cpu[name].append(time.process_time() - c0)
     print(f"n = {a.n}, {a.precision}, fast math {'off' if a.no_fast_math else 'on'}, {a.threads} thread(s), "
           f"{chunk} steps x {a.rounds} rounds, load {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
-    ref_w = chunk / statistics.median(wall["yardstick"])
-    ref_c = chunk / statistics.median(cpu["yardstick"])
+    ref_w = chunk / timings["yardstick"].median
+    ref_c = chunk / timings["yardstick"].cpu_median
     print(f"{'kernel':18s} {'steps/s':>9s} {'steps/CPU s':>12s} {'/ yardstick (wall, CPU)':>26s}")
     for name in names:
-        w, c = chunk / statistics.median(wall[name]), chunk / statistics.median(cpu[name])
+        w, c = chunk / timings[name].median, chunk / timings[name].cpu_median
         print(f"{name:18s} {w:9.1f} {c:12.1f} {w / ref_w:12.2f} {c / ref_c:12.2f}")
     return 0
 

@@ -4,12 +4,10 @@ two threads of one parallel loop overlap in time (``thread_overlap``).
 """
 from __future__ import annotations
 
-import statistics
-import time
-
 import taichi as ti
 
 from ..forces import SLAB_STRIDE
+from .timing import time_one
 
 
 # -- memory bandwidth bound ------------------------------------------------------------------------
@@ -29,15 +27,7 @@ def measured_bandwidth(mbytes: int = 256, repeats: int = 5) -> float:
 
 def median_kernel_seconds(kernel, repeats: int) -> float:
     """Median wall seconds of ``kernel()`` after one warm-up call (compiles), synced each time."""
-    kernel()
-    ti.sync()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        kernel()
-        ti.sync()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    return time_one(kernel, repeats, warmup=kernel).median
 
 
 def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: str, row_width: int = 0) -> int:

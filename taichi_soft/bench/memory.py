@@ -1,8 +1,9 @@
 """``bench memory``: peak resident (and device) memory per particle, measured against the estimate.
 
 Method: every (integrator, precision, n) runs ``main.py run --scene plane --set body.0.n=N`` for
-one step in a fresh subprocess, which reports its own peak resident set size (``VmHWM`` from
-/proc/self/status) and, on CUDA, the device memory nvidia-smi shows for it at the end of the run.
+one step as a task (``taichi_soft.tasks``: a fresh process, one at a time), which reports its own
+peak resident set size (``VmHWM`` from /proc/self/status) and, on CUDA, the device memory
+nvidia-smi shows for it at the end of the run.
 Implicit methods run with one Newton / global iteration and a few CG iterations: their memory does
 not depend on the iteration counts, their time does. Each row carries ``taichi_soft.memory``'s
 estimate for the same run, so the model that refuses too-large runs is checked here.
@@ -12,13 +13,7 @@ Sizes: n = 10, 20, 40, 80 and the largest n (up to the scene limit) whose estima
 """
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-
 from .. import memory
-from ..paths import ROOT
 from ..scene import load_scene
 from ..scene_validation import MAX_N
 
@@ -33,65 +28,66 @@ FIT_FRACTION = 0.5
 _FEW_ITERATIONS = {"implicit_euler": ["solver.newton_iters=1", "solver.cg_iters=5"],
                    "fast_mass_spring": ["solver.iterations=1", "solver.cg_iters=5"]}
 
-# Runs in the subprocess: the CLI's own run, then the process reports its peak memory.
-_WORKER = r"""
-import json, os, resource, subprocess, sys
-sys.path.insert(0, sys.argv[1])
-from taichi_soft.cli import main
-args = json.loads(sys.argv[2])
-with open(os.devnull, "w") as null:
-    out, sys.stdout = sys.stdout, null
-    rc = main(args["argv"])
-    sys.stdout = out
-peak = None
-try:
-    for line in open("/proc/self/status"):
-        if line.startswith("VmHWM:"):
-            peak = int(line.split()[1]) * 1024
-except OSError:
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-device = None
-if args["arch"] == "cuda":
-    try:
-        q = subprocess.run(["nvidia-smi", "--query-compute-apps=pid,used_memory", "--format=csv,noheader,nounits"],
-                           capture_output=True, text=True, timeout=20).stdout
-        device = sum(int(l.split(",")[1]) for l in q.splitlines() if l.split(",")[0].strip() == str(os.getpid())) * 2**20
-    except Exception:
-        device = None
-print(json.dumps({"rc": rc, "peak_bytes": peak, "device_bytes": device}))
-"""
-
-
 def scene_sets(n: int, integrator: str) -> list[str]:
     """The ``--set`` overrides of one measured run (the default plane scene, one body of n^3)."""
     return [f"body.0.n={n}"] + _FEW_ITERATIONS.get(integrator, [])
 
 
-def measure_peak(n: int, integrator: str, precision: str = "f64", arch: str = "cpu", timeout: float = 1800,
-                 env: dict | None = None) -> dict:
-    """Peak resident bytes (and CUDA device bytes) of a one-step CLI run in a fresh process
-    (``env``: extra environment variables for it)."""
-    sets = scene_sets(n, integrator)
-    argv = ["run", "--scene", "plane", "--integrator", integrator, "--precision", precision, "--arch", arch,
-            "--dt", "0.001", "--duration", "0.001"]
-    for s in sets:
-        argv += ["--set", s]
-    proc = subprocess.run([sys.executable, "-c", _WORKER, str(ROOT), json.dumps({"argv": argv, "arch": arch})],
-                          capture_output=True, text=True, cwd=ROOT, timeout=timeout, env={**os.environ, **(env or {})})
-    lines = proc.stdout.strip().splitlines()
-    if proc.returncode != 0 or not lines:
-        raise RuntimeError(f"memory run n={n} {integrator} {precision} failed: {proc.stderr.strip()[-500:]}")
-    res = json.loads(lines[-1])
-    if res["rc"] != 0:
-        raise RuntimeError(f"memory run n={n} {integrator} {precision} exited {res['rc']}: {proc.stderr.strip()[-300:]}")
-    data = load_scene("plane", sets).data
-    est = memory.estimate(data, integrator, precision, arch)
-    n_p, n_s = est["particles"], est["springs"]
-    return {"integrator": integrator, "family": FAMILY.get(integrator, "explicit"), "precision": precision,
-            "arch": est["arch"], "n": n, "particles": n_p, "springs": n_s, "peak_bytes": res["peak_bytes"],
-            "device_bytes": res["device_bytes"], "estimate_host_bytes": est["host"],
-            "estimate_device_bytes": est["device"], "measured_over_estimate": res["peak_bytes"] / est["host"],
-            "bytes_per_particle": res["peak_bytes"] / n_p}
+def measure_peaks(jobs: list[tuple[str, str, int]], arch: str = "cpu", progress=None) -> dict:
+    """Peak memory of a one-step CLI run per (integrator, precision, n), each a task in a fresh
+    process, one at a time: {"rows", "errors", "interrupted"}; Ctrl-C keeps the rows measured."""
+    from ..tasks import LocalExecutor, Task, run_tasks
+
+    tasks, job_of = [], {}
+    for integrator, precision, n in jobs:
+        argv = ["run", "--scene", "plane", "--integrator", integrator, "--precision", precision, "--arch", arch,
+                "--dt", "0.001", "--duration", "0.001"]
+        for s in scene_sets(n, integrator):
+            argv += ["--set", s]
+        key = f"memory run n={n} {integrator} {precision}"
+        tasks.append(Task(key, "taichi_soft.bench.peak_run:peak_of_run", {"argv": argv, "arch": arch}))
+        job_of[key] = (integrator, precision, n)
+
+    def finished(key, result):
+        if progress:
+            progress(len(finished.seen) + 1, len(tasks), key[len("memory run "):])
+        finished.seen.append(key)
+        return result
+    finished.seen = []
+
+    executor = LocalExecutor(1)
+    try:
+        outcome = run_tasks(tasks, executor, "bench memory", retries=0, bar=False, on_result=finished)
+    finally:
+        executor.close()
+    rows, errors = [], []
+    for key in job_of:
+        res = outcome.results.get(key)
+        if key in outcome.failed:
+            errors.append(f"{key} failed: {outcome.failed[key]}")
+            continue
+        if res is None:  # not run: interrupted
+            continue
+        if res["rc"] != 0:
+            errors.append(f"{key} exited {res['rc']}")
+            continue
+        integrator, precision, n = job_of[key]
+        est = memory.estimate(load_scene("plane", scene_sets(n, integrator)).data, integrator, precision, arch)
+        n_p, n_s = est["particles"], est["springs"]
+        rows.append({"integrator": integrator, "family": FAMILY.get(integrator, "explicit"), "precision": precision,
+                     "arch": est["arch"], "n": n, "particles": n_p, "springs": n_s, "peak_bytes": res["peak_bytes"],
+                     "device_bytes": res["device_bytes"], "estimate_host_bytes": est["host"],
+                     "estimate_device_bytes": est["device"], "measured_over_estimate": res["peak_bytes"] / est["host"],
+                     "bytes_per_particle": res["peak_bytes"] / n_p})
+    return {"rows": rows, "errors": errors, "interrupted": outcome.interrupted}
+
+
+def measure_peak(n: int, integrator: str, precision: str = "f64", arch: str = "cpu") -> dict:
+    """The row of one run (``measure_peaks``); RuntimeError if it failed."""
+    res = measure_peaks([(integrator, precision, n)], arch)
+    if not res["rows"]:
+        raise RuntimeError("; ".join(res["errors"]) or "interrupted")
+    return res["rows"][0]
 
 
 def largest_fitting_n(integrator: str, precision: str, arch: str = "cpu", fraction: float = FIT_FRACTION) -> int | None:
@@ -116,18 +112,7 @@ def run(quick: bool, progress=None, arch: str = "cpu") -> dict:
         if big is not None and big not in sizes:
             sizes.append(big)
         jobs += [(integrator, precision, n) for n in sizes]
-    rows, errors, interrupted = [], [], False
-    for k, (integrator, precision, n) in enumerate(jobs):
-        try:
-            rows.append(measure_peak(n, integrator, precision, arch))
-        except KeyboardInterrupt:
-            interrupted = True
-            break
-        except (RuntimeError, subprocess.TimeoutExpired) as e:
-            errors.append(str(e))
-        if progress:
-            progress(k + 1, len(jobs), f"memory {integrator} {precision} n={n}")
-    return {"rows": rows, "errors": errors, "interrupted": interrupted, "fit_fraction": FIT_FRACTION,
+    return {**measure_peaks(jobs, arch, progress), "fit_fraction": FIT_FRACTION,
             "available_bytes_at_start": memory.available_bytes("cpu")}
 
 

@@ -15,12 +15,11 @@ folder. Timings are wall clock on whatever machine runs this; the report says wh
 from __future__ import annotations
 
 import os
-import statistics
 import tempfile
-import time
 from pathlib import Path
 
 from ..errors import UserError
+from .timing import Candidate, no_sync, time_candidates, time_one
 
 N = 20
 RESOLUTION = (1280, 720)
@@ -38,15 +37,11 @@ def measure_build(path: Path, repeats: int) -> dict:
     """Median and all wall times [s] of building the n = 20 body from ``path``, cache emptied."""
     from .. import meshbody
 
-    samples, cpu = [], []
-    for _ in range(repeats):
-        meshbody._cached.cache_clear()
-        t0, c0 = time.perf_counter(), time.process_time()
-        m = meshbody.mesh_lattice(path, N, size=4.0)
-        samples.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
+    t = time_one(lambda: meshbody.mesh_lattice(path, N, size=4.0), repeats, setup=meshbody._cached.cache_clear,
+                 sync=no_sync)  # numpy work, no kernels in flight
+    m = t.last
     # CPU seconds as well: on a shared, overloaded machine the wall time mostly measures the wait.
-    return {"median_s": statistics.median(samples), "samples_s": samples, "cpu_median_s": statistics.median(cpu),
+    return {"median_s": t.median, "samples_s": t.wall, "cpu_median_s": t.cpu_median,
             "particles": m.n_particles, "springs": m.n_springs, "lattice": list(m.grid.shape)}
 
 
@@ -70,17 +65,14 @@ def measure_frames(path: Path, repeats: int, kind: str) -> dict:
             sim = Simulation(scene)
             views[name] = SimulationView(sim)
             cams[name] = scene_camera(scene.data, RESOLUTION[0] / RESOLUTION[1], False, 0.0)
-            for _ in range(3):  # warm-up: kernel compiles, GGUI pipelines
-                renderer.render(views[name], cams[name])
-        samples = {name: [] for name in bodies}
-        for _ in range(repeats):
-            for name in bodies:
-                t0 = time.perf_counter()
-                renderer.render(views[name], cams[name])
-                samples[name].append(1000 * (time.perf_counter() - t0))
+        # interleaved in a fixed order, medians; warm-up: kernel compiles, GGUI pipelines
+        frame = {name: Candidate(lambda v=views[name], c=cams[name]: renderer.render(v, c),
+                                 warmup=lambda v=views[name], c=cams[name]: [renderer.render(v, c) for _ in range(3)])
+                 for name in bodies}
+        timings = time_candidates(frame, repeats, rotate=False)
     finally:
         renderer.close()
-    med = {name: statistics.median(s) for name, s in samples.items()}
+    med = {name: 1000 * t.median for name, t in timings.items()}
     return {"cube_ms": med["cube"], "mesh_ms": med["mesh"], "ratio": med["mesh"] / med["cube"],
             "surface_triangles": {name: v.surface.n_triangles for name, v in views.items()}}
 

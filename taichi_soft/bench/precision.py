@@ -35,9 +35,10 @@ The verdict (fronts, cost at equal error, Markdown) is ``verdict.py``.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
+
+from .timing import time_one
 
 SAMPLE = 1.0 / 240.0  # [s] centre-of-mass sampling interval (every implicit step divides or is a multiple of it)
 FRAME = 1.0 / 15.0  # [s] frames at which trajectories are compared (a multiple of every step swept)
@@ -130,25 +131,20 @@ def trajectory(sim, dt: float, t_end: float, repeats: int = 1) -> dict:
     median wall time [s], ``ti.sync()`` around each; the solver stats of the first), then once
     sampled (the centre of mass every max(dt, SAMPLE) s, particles every FRAME): the same
     deterministic steps, so the samples are the timed runs' states."""
-    import taichi as ti
-
     total = int(round(t_end / dt))
-    walls, stats, diverged = [], None, False
-    for _ in range(repeats):
+    stats = []
+
+    def setup():
         sim.reset()
         sim.set_dt(dt)
         sim.integrator.stats()
-        ti.sync()
-        t0 = time.perf_counter()
-        sim.advance(total)
-        ti.sync()
-        walls.append(time.perf_counter() - t0)
-        s = sim.integrator.stats()
-        stats = stats or s
-        diverged = diverged or sim.diverged
-        if diverged:
-            break
-    wall = float(np.median(walls))
+
+    def done(_):
+        stats.append(sim.integrator.stats())
+        return sim.diverged
+
+    t = time_one(lambda: sim.advance(total), repeats, setup=setup, done=done)
+    wall, stats, diverged = float(np.median(t.wall)), stats[0], sim.diverged
     sim.reset()
     sim.set_dt(dt)
     per = max(1, int(round(SAMPLE / dt)))

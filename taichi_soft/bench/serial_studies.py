@@ -1,4 +1,4 @@
-"""The serial studies: speed (one subprocess per (arch, precision), then the equal-settings
+"""The serial studies: speed (one task per (arch, precision), then the equal-settings
 comparison: ``speed``, ``equal_settings``) and peak memory (``bench/memory.py``), with the writers
 of their files. They always run one configuration at a time: their measurements need a quiet
 machine.
@@ -7,12 +7,9 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 from ..integrators import REGISTRY
-from ..paths import ROOT
 from . import machine
 from .files import write_csv, write_text
 from .speed import measure as measure_speed
@@ -31,22 +28,21 @@ def speed_configs() -> list[tuple[str, str]]:
     return configs
 
 
-def run_speed_worker(quick: bool) -> dict:
-    """Inside one (arch, precision) process: engine rows, numpy/Warp comparison, bandwidth, profile."""
+def speed_config(arch: str, precision: str, quick: bool, profile: bool = False) -> dict:
+    """A task (tasks.py), so in a process of its own: one (arch, precision) configuration with fast
+    math on (the command line's default): engine rows, bandwidth bound, thread overlap; or, with
+    ``profile``, only the kernel profile (the profiler's bookkeeping would slow the timed rows)."""
     from .machine_limits import bytes_per_step, measured_bandwidth, thread_overlap
     from .speed import kernel_profile
 
     from .. import runtime
 
-    cfg = runtime.current()
-    profile = []
-    if os.environ.get("TAICHI_SOFT_PROFILE") == "1":
-        # A separate process only for the profile: the profiler's bookkeeping would slow the
-        # timed rows, so those come from the unprofiled worker.
-        for n in (4,) if quick else (10, 40):
-            for name in ("semi_implicit_euler",) if quick else ("semi_implicit_euler", "rk4"):
-                profile.append({"n": n, "integrator": name, "tasks": kernel_profile(name, n)})
-        return {"config": cfg, "profile": profile}
+    cfg = runtime.init(arch, precision, fast_math=True, kernel_profiler=profile)
+    if profile:
+        rows = [{"n": n, "integrator": name, "tasks": kernel_profile(name, n)}
+                for n in ((4,) if quick else (10, 40))
+                for name in (("semi_implicit_euler",) if quick else ("semi_implicit_euler", "rk4"))]
+        return {"config": cfg, "profile": rows}
     sizes = (4,) if quick else ((10, 20, 40, 80) if cfg["arch"] == "cpu" else (10, 20, 40, 100))
     names = list(REGISTRY)
     rows = []
@@ -65,42 +61,48 @@ def run_speed_worker(quick: bool) -> dict:
         b = bytes_per_step(r["particles"], r["springs"], real_bytes, r["forces"], r.get("row_width", 0))
         bound.append({"n": r["n"], "bytes_per_step": b, "bound_steps_per_s": bw / b,
                       "measured_steps_per_s": r["steps_per_s"], "fraction_of_bound": r["steps_per_s"] * b / bw})
-    return {"config": cfg, "rows": rows, "bandwidth_bytes_per_s": bw, "bound": bound, "profile": profile,
+    return {"config": cfg, "rows": rows, "bandwidth_bytes_per_s": bw, "bound": bound, "profile": [],
             "thread_overlap": overlap}
 
 
 def run_speed(quick: bool, progress=None) -> dict:
-    """One subprocess per (arch, precision) configuration (Taichi initialises once per process),
-    fast math on (the command line's default); then the equal-settings comparison, interleaved."""
+    """``speed_config`` of each (arch, precision) as a task, one at a time (Taichi initialises once
+    per process; the timings want a quiet machine), the first also profiled; then the
+    equal-settings comparison, interleaved."""
     from ..runtime import available_archs
+    from ..tasks import LocalExecutor, Task, run_tasks
     from .equal_settings import equal_settings, equal_settings_specs, quick_specs
 
-    results, interrupted = [], False
     configs = speed_configs()
+    tasks = []
     for k, (arch, precision) in enumerate(configs):
-        for profile in (False, True):
-            if profile and (arch, precision) != configs[0]:
-                continue
-            cmd = [sys.executable, str(ROOT / "main.py"), "bench", "speed-worker", "--arch", arch, "--precision",
-                   precision, "--fast-math"] + (["--quick"] if quick else [])
-            env = dict(os.environ, TAICHI_SOFT_PROFILE="1" if profile else "0")
-            try:
-                proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
-            except KeyboardInterrupt:
-                interrupted = True
-                break
-            if proc.returncode != 0:
-                results.append({"config": {"arch": arch, "precision": precision}, "error": proc.stderr.strip()[-500:]})
-                continue
-            data = json.loads(proc.stdout.strip().splitlines()[-1])
-            if profile:
-                results[-1]["profile"] = data["profile"]
-            else:
-                results.append(data)
-        if interrupted:
-            break
-        if progress:
-            progress(k + 1, len(configs), f"speed {arch} {precision}")
+        kwargs = {"arch": arch, "precision": precision, "quick": quick}
+        tasks.append(Task(f"speed {arch} {precision}", f"{__name__}:speed_config", kwargs))
+        if k == 0:
+            tasks.append(Task(f"profile {arch} {precision}", f"{__name__}:speed_config", {**kwargs, "profile": True}))
+    done = []
+
+    def finished(key, result):
+        if progress and key.startswith("speed "):
+            done.append(key)
+            progress(len(done), len(configs), key)
+        return result
+
+    executor = LocalExecutor(1)
+    try:
+        outcome = run_tasks(tasks, executor, "bench speed", retries=0, bar=False, on_result=finished)
+    finally:
+        executor.close()
+    results = []
+    for t in tasks:
+        if t.key in outcome.results and t.kwargs.get("profile"):
+            results[-1]["profile"] = outcome.results[t.key]["profile"]
+        elif t.key in outcome.results:
+            results.append(outcome.results[t.key])
+        elif t.key in outcome.failed:
+            results.append({"config": {"arch": t.kwargs["arch"], "precision": t.kwargs["precision"]},
+                            "error": outcome.failed[t.key]})
+    interrupted = outcome.interrupted
     equal = []
     if not interrupted:
         gpus = tuple(a for a in available_archs() if a == "cuda")

@@ -6,13 +6,12 @@ built, compiled and warmed up, then timed whenever the coordinator asks on stdin
 """
 from __future__ import annotations
 
-import time
-
 import taichi as ti
 
 from ..scene import load_scene
 from ..simulation import Simulation
 from .machine_limits import thread_overlap
+from .timing import no_sync, time_one
 
 REFERENCE_SCENE = ["terrain.kind=none", "body.0.initial_stretch=[1.05, 0.97, 1.0]"]
 RUN_FPS = 30  # output frames per second of the "run" rows (the scene files' default)
@@ -69,7 +68,7 @@ class _Stepper:
             def reset():
                 nps.x[:] = x0
                 nps.v[:] = v0
-            self.reset, self.advance, self.sync, self.x = reset, nps.step, (lambda: None), (lambda: nps.x.copy())
+            self.reset, self.advance, self.sync, self.x = reset, nps.step, no_sync, (lambda: nps.x.copy())
         else:
             from .references import WarpStepper
 
@@ -94,13 +93,8 @@ class _Stepper:
 
     def timed(self, chunk: int, cpu: bool = False):
         """Wall seconds of ``chunk`` steps from the start state (and this process's CPU seconds)."""
-        self.reset()
-        self.sync()
-        c0, t0 = time.process_time(), time.perf_counter()
-        self.advance(chunk)
-        self.sync()
-        wall, used = time.perf_counter() - t0, time.process_time() - c0
-        return (wall, used) if cpu else wall
+        t = time_one(lambda: self.advance(chunk), 1, setup=self.reset, sync=self.sync)
+        return (t.wall[0], t.cpu[0]) if cpu else t.wall[0]
 
 
 def _worker_main():

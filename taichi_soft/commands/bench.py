@@ -1,22 +1,17 @@
 """``bench``: the studies of taichi_soft.bench, written as CSV, PNG and Markdown."""
 from __future__ import annotations
 
-import argparse
-import json
-import os
 import sys
 
 from ..errors import UserError
-from .common import (DEFAULT_OUT, EXIT_OK, EXIT_TASKS_FAILED, add_fast_math_arg, add_task_args,
-                     check_output_dir, Choices)
+from .common import DEFAULT_OUT, EXIT_OK, EXIT_TASKS_FAILED, add_task_args, check_output_dir
 
 
 def add_parser(sub):
     """The ``bench`` command's arguments on the subparsers ``sub``."""
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
-    p_bench.add_argument("study", choices=Choices(["accuracy", "precision", "stability", "speed", "memory", "report", "mesh",
-                                                    "energy"],
-                                                   hidden=["speed-worker"]),
+    p_bench.add_argument("study", choices=["accuracy", "precision", "stability", "speed", "memory", "report", "mesh",
+                                           "energy"],
                          help="what to measure; precision: work-precision at equal error (issue 22); report runs accuracy, "
                               "precision, stability, speed and memory and writes REPORT.md; mesh: the mesh-body "
                               "goals (build time, frame cost), MESH.md; energy: the implicit solvers' energy "
@@ -24,9 +19,6 @@ def add_parser(sub):
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     add_task_args(p_bench)
-    p_bench.add_argument("--arch", default="cpu", help=argparse.SUPPRESS)
-    p_bench.add_argument("--precision", default="f64", help=argparse.SUPPRESS)
-    add_fast_math_arg(p_bench, False)
     p_bench.set_defaults(func=cmd_bench)
 
 
@@ -38,13 +30,6 @@ def cmd_bench(args) -> int:
     from ..progress import CountBar
     from ..tasks import RETRIES, make_executor
 
-    if args.study == "speed-worker":  # internal: one (arch, precision) per process, JSON on stdout
-        from ..bench.serial_studies import run_speed_worker
-
-        runtime.init(args.arch, args.precision, fast_math=args.fast_math,
-                     kernel_profiler=os.environ.get("TAICHI_SOFT_PROFILE") == "1")
-        print(json.dumps(run_speed_worker(args.quick)))
-        return EXIT_OK
     if args.study in ("speed", "memory", "mesh", "energy") and (args.workers is not None or args.scheduler is not None):
         why = ("its cases run in one process" if args.study == "energy" else
                "one configuration at a time: its measurements need a quiet machine")

@@ -22,18 +22,6 @@ class Parser(argparse.ArgumentParser):
         raise UserError(f"{self.prog}: {message} (see --help)")
 
 
-class Choices(list):
-    """Choices argparse accepts (``in``) beyond those it lists (iteration: help, usage, errors), for
-    internal commands such as ``bench speed-worker`` (one benchmark process of ``bench report``)."""
-
-    def __init__(self, shown, hidden):
-        super().__init__(shown)
-        self.hidden = set(hidden)
-
-    def __contains__(self, item):
-        return item in self.hidden or super().__contains__(item)
-
-
 # -- output files --------------------------------------------------------------------------
 def check_output_path(path: str | None, flag: str, suffixes=None) -> Path | None:
     """Fail early (before any simulation) if ``path`` cannot be written (a missing parent folder is

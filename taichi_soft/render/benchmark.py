@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -40,22 +39,12 @@ from pathlib import Path
 def _interleaved_ms(stages: dict, repeats: int, warmup: int = 3) -> dict:
     """{name: (wall, process CPU) medians in ms} of each ``stages[name]()``, the stages timed in
     turn, round after round (a load that drifts hits all of them alike); ``ti.sync()`` before
-    each clock read."""
-    import taichi as ti
+    each clock read (``bench.timing``)."""
+    from ..bench.timing import Candidate, time_candidates
 
-    for fn in stages.values():
-        for _ in range(warmup):
-            fn()
-    samples = {name: ([], []) for name in stages}
-    for _ in range(repeats):
-        for name, fn in stages.items():
-            ti.sync()
-            t0, c0 = time.perf_counter(), time.process_time()
-            fn()
-            ti.sync()
-            samples[name][0].append(1000 * (time.perf_counter() - t0))
-            samples[name][1].append(1000 * (time.process_time() - c0))
-    return {name: (statistics.median(w), statistics.median(c)) for name, (w, c) in samples.items()}
+    timings = time_candidates({name: Candidate(fn, warmup=lambda fn=fn: [fn() for _ in range(warmup)])
+                               for name, fn in stages.items()}, repeats, rotate=False)
+    return {name: (1000 * t.median, 1000 * t.cpu_median) for name, t in timings.items()}
 
 
 def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
