@@ -9,7 +9,7 @@ stiffness, a damper coefficient or a mass changes. Under contact the global step
 one solve with that factorisation and one block-Jacobi smoothing step, filtered (held particles
 keep their normal component) and scaled by the step's quadratic model
 (``contact_solve = "scaled"``), or the filtered system solved by PCG preconditioned by the
-factorisation (``"pcg"``). The global step is a descent direction of g
+factorisation (``"pcg"``); ``"auto"`` picks by the springs' stiffness at the step (laplacian.py). The global step is a descent direction of g
 (M + L is SPD), so the shared driver's line search keeps g(x_k) <= g(x_n) at every iterate, and
 its stopping tests apply as for Newton.
 """
@@ -48,8 +48,8 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         chosen = self.resolve(self.parse_options(options or {}), *running_target(), model_counts(model))
         solver = chosen["global_solver"]
         self.global_solver = solver
-        # Fixed at construction (an option), so a compile-time constant.
-        self.scaled_contact = solver == "cholesky" and chosen["contact_solve"] == "scaled"
+        self.scaled_contact = solver == "cholesky" and chosen["contact_solve"] != "pcg"  # compiled in or not
+        self.options_contact_solve = chosen["contact_solve"]
         self._init_laplacian(model, factorise=solver == "cholesky")
         self.pcg = PCG(n)
         # The grab's term in the factor (Sherman-Morrison, see _factor_solve): w = A^-1 e_i for
@@ -218,7 +218,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         if ti.static(self.global_solver == "cholesky"):
             if self.sc[S.N_ACTIVE] == 0:
                 self._factor_solve(self.rhs, self.dx)  # nothing held: the factorisation is exact
-            elif ti.static(self.scaled_contact) and self.sc[S.N_PAIRS] == 0:
+            elif ti.static(self.scaled_contact) and self.sc[S.N_PAIRS] == 0 and self._scaled_contact_now():
                 # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry
                 # the stiff pair penalty, and local/global then stalled at the velocity test)
                 self._scaled_direction()
@@ -232,7 +232,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     def _global_step_python(self):
         if self.global_solver == "cholesky" and self.sc[S.N_ACTIVE] == 0:
             self._k_factor_solve(self.rhs, self.dx)
-        elif self.scaled_contact and self.sc[S.N_PAIRS] == 0:
+        elif self.scaled_contact and self.sc[S.N_PAIRS] == 0 and self._scaled_contact_now_python():
             self._k_scaled_direction()
         else:
             self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))

@@ -51,11 +51,12 @@ LOCAL_GLOBAL = {
     "global_solver": Option("auto", lambda v: v in ("auto", "cholesky", "pcg"), "auto, cholesky or pcg",
                             "cholesky: prefactored skyline Cholesky (under contact see contact_solve); "
                             "pcg: matrix-free Jacobi PCG; auto: cholesky on a CPU while the factor is small"),
-    "contact_solve": Option("scaled", lambda v: v in ("scaled", "pcg"), "scaled or pcg",
+    "contact_solve": Option("auto", lambda v: v in ("auto", "scaled", "pcg"), "auto, scaled or pcg",
                             "global step with particles held on the terrain (global_solver = cholesky): "
                             "scaled: one solve with the prefactored matrix and one block-Jacobi smoothing "
                             "step (friction), filtered, its length from the step's quadratic model; "
-                            "pcg: the filtered system solved by PCG to cg_tol"),
+                            "pcg: the filtered system solved by PCG to cg_tol; auto: scaled while "
+                            "h^2 k_max / m_min <= 10 at the step, pcg on stiffer springs"),
     "cg_tol": Option(0.1, number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
                      "relative CG residual of a global step (contact_solve = pcg, or global_solver = pcg)"),
     "history": Option(5, lambda v: int_at_least(0)(v) and v <= 32, "an integer in [0, 32]",
