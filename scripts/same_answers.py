@@ -22,9 +22,9 @@ from taichi_soft import runtime  # noqa: E402
 
 runtime.init("cpu", "f64")
 
-from taichi_soft.integrators import REGISTRY, names  # noqa: E402
-from taichi_soft.scene import load_scene  # noqa: E402
-from taichi_soft.simulation import Simulation  # noqa: E402
+from taichi_soft.sim.integrators import REGISTRY, names  # noqa: E402
+from taichi_soft.sim.scene import load_scene  # noqa: E402
+from taichi_soft.sim.simulation import Simulation  # noqa: E402
 
 TERRAINS = ("plane", "tilted_plane", "sphere", "bowl")
 SMALL = ["body.0.n=5"]

@@ -5,8 +5,8 @@ validated scene, the step count the run would take and the memory estimate ``che
 """
 from __future__ import annotations
 
-from . import memory
-from .simulation import frame_steps, step_count
+from .sim import memory
+from .sim.simulation import frame_steps, step_count
 
 
 def _size(b: int) -> str:

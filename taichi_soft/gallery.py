@@ -47,7 +47,7 @@ class Plan:
 
 def run_dt(scene_dt: float, integrator: str, dt: float | None) -> float:
     """The step [s] ``integrator`` runs at in the gallery: ``dt`` if given, else its sensible default."""
-    from .integrators import REGISTRY
+    from .sim.integrators import REGISTRY
 
     if dt is not None:
         return dt
@@ -65,8 +65,8 @@ def mosaic_resolution(resolution) -> tuple:
 def _load(terrain: str, sets, dt, duration, resolution):
     """The scene with the gallery's ``--set`` overrides, then dt, duration and resolution on top
     (as flags: they win over a ``--set`` of the same key, as in ``run``)."""
-    from .integrators import names
-    from .scene import load_scene
+    from .sim.integrators import names
+    from .sim.scene import load_scene
 
     flags = {"render.resolution": (list(resolution), f"--resolution {resolution[0]}x{resolution[1]}")}
     if dt is not None:
@@ -79,7 +79,7 @@ def _load(terrain: str, sets, dt, duration, resolution):
 def check_plan(plan: Plan) -> dict:
     """Load every scene with the plan's overrides (bad input raises ``UserError`` before any work);
     returns {terrain: scene dt [s]}."""
-    from .memory import check_fits
+    from .sim.memory import check_fits
 
     dts = {}
     for terrain in plan.terrains:
@@ -112,7 +112,7 @@ def render_run(scene: str, integrator: str, dt: float, duration, resolution, set
     from .render import overlay
     from .render.compare import solver_options
     from .render.recorder import FrameRecorder, RenderOptions
-    from .simulation import Simulation
+    from .sim.simulation import Simulation
 
     runtime.init("cpu", "f64")
     sc = _load(scene, sets, dt, duration, resolution)

@@ -31,9 +31,9 @@ def taichi_runtime():
 @pytest.fixture
 def make_sim():
     """``make_sim(scene="plane", sets=[...], **sim_kwargs)`` -> a ``Simulation``."""
-    from taichi_soft.integrators import names
-    from taichi_soft.scene import load_scene
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.integrators import names
+    from taichi_soft.sim.scene import load_scene
+    from taichi_soft.sim.simulation import Simulation
 
     def make(scene="plane", sets=(), **kwargs):
         return Simulation(load_scene(scene, list(sets), integrator_names=names()), **kwargs)

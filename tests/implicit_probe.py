@@ -8,7 +8,7 @@ evaluate at ``state.x`` for that step, with no particle held and no friction.
 import numpy as np
 import taichi as ti
 
-from taichi_soft.integrators.implicit import slots as S
+from taichi_soft.sim.integrators.implicit import slots as S
 
 
 @ti.kernel

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from taichi_soft.bench.stability import largest_stable_dt
-from taichi_soft.integrators import make_integrator
-from taichi_soft.model import Model
-from taichi_soft.terrain import make_terrain
+from taichi_soft.sim.integrators import make_integrator
+from taichi_soft.sim.model import Model
+from taichi_soft.sim.terrain import make_terrain
 
 
 def _single_spring(k, c, m=1.0):
@@ -81,8 +81,8 @@ def test_references_of_the_speed_study_take_the_engines_steps(kind):
     the engine's semi-implicit steps from the same state to the same final state (f64 rounding)."""
     from taichi_soft.bench import references
     from taichi_soft.bench.speed_worker import REFERENCE_SCENE
-    from taichi_soft.scene import load_scene
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.scene import load_scene
+    from taichi_soft.sim.simulation import Simulation
 
     sim = Simulation(load_scene("plane", ["body.0.n=4", *REFERENCE_SCENE]), integrator="semi_implicit_euler")
     args = (sim.model, sim.model.x0_np, sim.model.v0_np, sim.dt)
@@ -261,7 +261,7 @@ def test_bench_precision_bad_workers_is_refused_before_any_work(cli, tmp_path):
 def test_spring_passes_count_every_evaluation_an_implicit_step_makes():
     """The work axis of the benchmarks: explicit methods their force evaluations; an implicit step
     one pass per objective or gradient evaluation and one per CG Hessian product (not 1 per step)."""
-    from taichi_soft.integrators import REGISTRY
+    from taichi_soft.sim.integrators import REGISTRY
 
     assert REGISTRY["rk4"].spring_passes_per_step({}) == 4
     newton = {"newton_iterations_per_step": 3.0, "line_search_halvings_per_step": 0.5, "cg_iterations_per_step": 40.0}

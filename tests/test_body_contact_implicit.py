@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from physics_helpers import total_energy
-from taichi_soft.lattice import lattice_points
+from taichi_soft.sim.lattice import lattice_points
 
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 G = 9.8
@@ -172,8 +172,8 @@ def test_a_pair_list_that_overflows_is_said(make_sim, tmp_path_factory, monkeypa
     """A list too small for the scene (two candidate slots, built for this test) while a cube at
     10 m/s lands on another at 0.1 s: the dropped pairs are counted and the run's health check says
     so (``run`` prints it on stderr)."""
-    from taichi_soft.integrators.implicit import pair_list
-    from taichi_soft.integrators.implicit.health import assess
+    from taichi_soft.sim.integrators.implicit import pair_list
+    from taichi_soft.sim.integrators.implicit.health import assess
 
     path = tmp_path_factory.mktemp("scenes") / "two.toml"
     path.write_text("[[body]]\n[[body]]\n[terrain]\nkind = \"plane\"\npoint = [0, 0, 0]\n")

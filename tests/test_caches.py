@@ -11,8 +11,8 @@ def run(tmp_path_factory):
     """A torus (mesh body) falling beside a cube onto the plane for 0.3 s at 20 frames/s, written
     to out.usda and pc2/ by the recorder (no Vulkan needed); returns (paths, frames, surface)."""
     from taichi_soft.render.recorder import FrameRecorder, RenderOptions
-    from taichi_soft.scene import scene_from_dict
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.scene import scene_from_dict
+    from taichi_soft.sim.simulation import Simulation
 
     d = tmp_path_factory.mktemp("caches")
     trimesh.creation.torus(1.0, 0.4, major_sections=24, minor_sections=12).export(d / "torus.obj")

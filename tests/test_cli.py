@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from taichi_soft.scene import load_scene
-from taichi_soft.scene_overrides import apply_overrides, parse_value
+from taichi_soft.sim.scene import load_scene
+from taichi_soft.sim.scene_overrides import apply_overrides, parse_value
 from taichi_soft.errors import UserError
-from taichi_soft.simulation import frame_steps
+from taichi_soft.sim.simulation import frame_steps
 
 SMALL = ["--set", "body.0.n=4", "--set", "body.0.size=1.5", "--duration", "0.2"]
 
@@ -139,7 +139,7 @@ def test_override_rejects_bad_index():
 
 
 def test_every_shipped_scene_validates():
-    from taichi_soft.scene import scene_names
+    from taichi_soft.sim.scene import scene_names
 
     names = scene_names()
     assert {"plane", "tilted_plane", "sphere", "bowl"} <= set(names)
@@ -174,8 +174,8 @@ def test_bench_offers_only_studies_and_no_internal_worker():
 
 def test_run_dry_run_says_what_would_be_simulated_and_the_memory(cli, tmp_path):
     """Issue 24: `run --dry-run` prints the run and the memory estimate, simulates and writes nothing."""
-    from taichi_soft.memory import estimate
-    from taichi_soft.scene import load_scene
+    from taichi_soft.sim.memory import estimate
+    from taichi_soft.sim.scene import load_scene
 
     summary = tmp_path / "s.json"
     r = cli("run", "--dry-run", "--set", "body.0.n=6", "--integrator", "implicit_euler", "--dt", "0.01",

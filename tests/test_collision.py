@@ -3,7 +3,7 @@ one body that compile no contact code."""
 import numpy as np
 import pytest
 
-from taichi_soft.collision import contact_radii
+from taichi_soft.sim.collision import contact_radii
 
 G = 9.8
 

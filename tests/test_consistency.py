@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 
 from physics_helpers import build
-from taichi_soft.integrators import make_integrator
-from taichi_soft.integrators.implicit.health import CLAMP_WARN_SHARE
+from taichi_soft.sim.integrators import make_integrator
+from taichi_soft.sim.integrators.implicit.health import CLAMP_WARN_SHARE
 
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 TIGHT = {  # converged solves: stop on the residual alone [m/s^2]

@@ -3,8 +3,8 @@ friction holds on slopes, resting cubes stop, fast drops still bounce, for expli
 import numpy as np
 import pytest
 
-from taichi_soft.integrators import make_integrator
-from taichi_soft.terrain import CONTACT_DEFAULTS
+from taichi_soft.sim.integrators import make_integrator
+from taichi_soft.sim.terrain import CONTACT_DEFAULTS
 
 from physics_helpers import build
 

@@ -13,7 +13,7 @@ import taichi as ti
 from taichi_soft.demo import hud
 from taichi_soft.demo.controller import DemoController
 from taichi_soft.demo.pacing import Pacer
-from taichi_soft.integrators import names
+from taichi_soft.sim.integrators import names
 
 from conftest import ROOT, missing_tool
 
@@ -510,7 +510,7 @@ def pick_surface(points: np.ndarray, triangles: np.ndarray, origin: np.ndarray, 
 def test_picking_finds_the_particle_under_the_cursor(make_sim):
     from taichi_soft.demo.picking import pick, plane_point, view_ray
     from taichi_soft.demo.surface_pick import SurfacePicker
-    from taichi_soft.lattice import surface_triangles
+    from taichi_soft.sim.lattice import surface_triangles
     from taichi_soft.render.camera import CameraSpec, project
 
     n = 3

@@ -11,7 +11,7 @@ import pytest
 
 from physics_helpers import build
 from taichi_soft import runtime
-from taichi_soft.integrators import make_integrator
+from taichi_soft.sim.integrators import make_integrator
 
 
 @pytest.fixture(scope="module", autouse=True)

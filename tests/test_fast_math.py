@@ -5,10 +5,10 @@ import pytest
 import taichi as ti
 
 from taichi_soft import runtime
-from taichi_soft.forces import ForceEvaluator
-from taichi_soft.model import Model
-from taichi_soft.slabs import graph_ranges
-from taichi_soft.integrators import REGISTRY, make_integrator
+from taichi_soft.sim.forces import ForceEvaluator
+from taichi_soft.sim.model import Model
+from taichi_soft.sim.slabs import graph_ranges
+from taichi_soft.sim.integrators import REGISTRY, make_integrator
 
 from physics_helpers import build, simulate, stretched
 
@@ -101,8 +101,8 @@ def _check_slabs(pairs, first, ranges, n_particles):
 def test_scatter_slabs_of_one_parity_share_no_particle():
     """The parallel scatter's race freedom, on the springs in the model's own order: lattice
     bodies of several sizes (rotated: springs at every angle) in one model, and a random graph."""
-    from taichi_soft.bodies import BodySpec
-    from taichi_soft.builder import ModelBuilder
+    from taichi_soft.sim.bodies import BodySpec
+    from taichi_soft.sim.builder import ModelBuilder
 
     builder = ModelBuilder()
     for k, n in enumerate((2, 3, 7, 8)):
@@ -131,7 +131,7 @@ def test_scatter_of_any_graph_matches_the_reference():
     rest = np.linalg.norm(x0[pairs[:, 0]] - x0[pairs[:, 1]], axis=1) * 0.9
     model = Model(x0=x0, v0=np.zeros_like(x0), mass=np.ones(n), pairs=pairs, rest=rest, group=np.zeros(len(pairs)),
                   group_k=[500.0], group_kd=[2.0], gravity=(0.0, -9.8, 0.0), bodies=[])
-    from taichi_soft.terrain import make_terrain
+    from taichi_soft.sim.terrain import make_terrain
 
     terrain = make_terrain("none", n, {})
     integ = make_integrator("semi_implicit_euler", model, terrain, {"mode": "parallel", "forces": "scatter"})

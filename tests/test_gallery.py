@@ -240,7 +240,7 @@ def _full_width_page() -> str:
     """The page of a full gallery (4 terrains x every integrator + compare), from made-up results:
     the layout, not the runs, is under test (videos are absent; the page says so in each card)."""
     from taichi_soft.gallery import Plan, page_html
-    from taichi_soft.integrators import names
+    from taichi_soft.sim.integrators import names
 
     plan = Plan(["plane", "tilted_plane", "sphere", "bowl"], names(), None, (640, 360), None, [], Path("."))
     energy = [(0.01 * k, 88000.0 - 30.0 * k + (5000.0 if k == 40 else 0.0)) for k in range(200)]

@@ -12,7 +12,7 @@ import pytest
 
 import implicit_probe as probe
 from physics_helpers import build, simulate, stretched, total_energy
-from taichi_soft.integrators import REGISTRY, make_integrator
+from taichi_soft.sim.integrators import REGISTRY, make_integrator
 
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 EXPLICIT = [name for name, cls in REGISTRY.items() if not cls.implicit]
@@ -256,9 +256,9 @@ _SIMS = {}
 
 def _sim(terrain, integrator, stiffness=1.0):
     """The default cube on ``terrain`` (cached per terrain and integrator), reset, stiffness scaled."""
-    from taichi_soft.integrators import names
-    from taichi_soft.scene import load_scene
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.integrators import names
+    from taichi_soft.sim.scene import load_scene
+    from taichi_soft.sim.simulation import Simulation
 
     key = (terrain, integrator)
     if key not in _SIMS:
@@ -325,7 +325,7 @@ def test_stable_on_the_sphere_at_frame_step(name, stiffness):
 def _slide(sim, speed=5.0, times=(0.4, 1.0)):
     """Put the unrotated cube on the plane y = -1 moving along x at ``speed`` [m/s]; returns the
     mean x velocity [m/s] at each of ``times`` [s] (after the reset of ``_sim``)."""
-    from taichi_soft.lattice import lattice_points
+    from taichi_soft.sim.lattice import lattice_points
 
     spec = sim.model.bodies[0].spec
     x = lattice_points(spec.n, spec.size) + np.array([0.0, -1.0 + 0.5 * spec.size + 0.005, 0.0])
@@ -532,7 +532,7 @@ def test_restitution_follows_the_bounce_threshold(name):
     """The unrotated cube touching the plane and moving down at a speed above the terrain's bounce
     threshold (1 m/s): the bottom layer leaves with restitution (0.8) times its approach speed, as
     Terrain.impact gives the explicit methods; below the threshold it does not bounce."""
-    from taichi_soft.lattice import lattice_points
+    from taichi_soft.sim.lattice import lattice_points
 
     sim = _sim("plane", name)
     spec = sim.model.bodies[0].spec

@@ -17,9 +17,9 @@ SIZE, CENTRE = 1.5, 3.0  # a small cube, its centre's start height [m]
 
 def _flat_cube(name, stiffness):
     """A 4^3 cube above the plane, unrotated (one simulation per solver: each compiles)."""
-    from taichi_soft.integrators import names
-    from taichi_soft.scene import load_scene
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.integrators import names
+    from taichi_soft.sim.scene import load_scene
+    from taichi_soft.sim.simulation import Simulation
 
     sets = ["body.0.n=4", f"body.0.size={SIZE}", f"body.0.center=[0, {CENTRE}, 0]", "body.0.rotation.degrees=0"]
     sim = Simulation(load_scene("plane", sets, integrator_names=names()), name, 0.01)

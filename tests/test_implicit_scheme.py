@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from physics_helpers import build, simulate, stretched, total_energy
-from taichi_soft.integrators import make_integrator
+from taichi_soft.sim.integrators import make_integrator
 
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 TIGHT = {

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from taichi_soft.integrators import REGISTRY
+from taichi_soft.sim.integrators import REGISTRY
 
 from physics_helpers import build, simulate, stretched, total_energy
 
@@ -95,7 +95,7 @@ def test_semi_implicit_euler_energy_bounded_without_dampers():
     x0 = stretched(model)
     v0 = np.zeros_like(x0)
     e0 = total_energy(model, x0, v0)
-    from taichi_soft.integrators import make_integrator
+    from taichi_soft.sim.integrators import make_integrator
 
     integ = make_integrator("semi_implicit_euler", model, terrain)
     state = model.state()
@@ -124,7 +124,7 @@ def test_serial_and_parallel_launches_agree(name):
 def test_divergence_stops_at_the_step(mode):
     model, terrain = build(n=3, size=1.0, stretch=(1e5, 0.0), shear=(1e5, 0.0), bend=(1e5, 0.0))
     x0 = stretched(model, (1.2, 1.0, 1.0))
-    from taichi_soft.integrators import make_integrator
+    from taichi_soft.sim.integrators import make_integrator
 
     integ = make_integrator("explicit_euler", model, terrain, {"mode": mode})
     state = model.state()

@@ -1,4 +1,4 @@
-"""The memory model (taichi_soft/memory.py) against what runs really allocate and use."""
+"""The memory model (taichi_soft/sim/memory.py) against what runs really allocate and use."""
 import math
 
 import pytest
@@ -7,7 +7,7 @@ from taichi.lang.field import Field
 from taichi.lang.matrix import MatrixField
 
 from taichi_soft import memory, runtime
-from taichi_soft.scene import load_scene
+from taichi_soft.sim.scene import load_scene
 
 _BYTES = {ti.f64: 8, ti.f32: 4, ti.i32: 4, ti.i64: 8, ti.i8: 1, ti.u8: 1}
 
@@ -45,10 +45,10 @@ def test_field_table_matches_allocated_fields():
     """memory.COMMON and each integrator's declared buffers (Integrator.buffers) count every field
     whose size grows with the body, for every integrator (n = 8: a missing per-particle float would
     be 4 KB, more than all fixed-size fields together)."""
-    from taichi_soft.forces import Diagnostics
-    from taichi_soft.integrators import make_integrator, names
-    from taichi_soft.lattice import envelope_size
-    from taichi_soft.linalg import SkylineCholesky
+    from taichi_soft.sim.forces import Diagnostics
+    from taichi_soft.sim.integrators import make_integrator, names
+    from taichi_soft.sim.lattice import envelope_size
+    from taichi_soft.sim.linalg import SkylineCholesky
 
     from physics_helpers import build
 

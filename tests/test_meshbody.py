@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from taichi_soft.bodies import BodySpec
-from taichi_soft.builder import ModelBuilder
+from taichi_soft.sim.bodies import BodySpec
+from taichi_soft.sim.builder import ModelBuilder
 from taichi_soft.errors import UserError
-from taichi_soft.meshbody import mesh_lattice
+from taichi_soft.sim.meshbody import mesh_lattice
 
 R_MAJOR, R_MINOR = 1.0, 0.4  # the test torus, mesh units; its axis is z
 
@@ -93,7 +93,7 @@ def test_open_mesh_is_repaired_and_says_so(meshes):
 
 def _scene(path, **body):
     """A mesh body of 1.5 m dropped 1 m onto the plane y = 0, firm and well damped."""
-    from taichi_soft.scene import scene_from_dict
+    from taichi_soft.sim.scene import scene_from_dict
 
     spring = {"k": 4000.0, "damping": 90.0}
     b = {"shape": "mesh", "mesh": str(path), "n": 7, "size": 1.5, "center": [0.0, 1.75, 0.0],
@@ -113,7 +113,7 @@ def test_scene_keys_are_checked(meshes, body, word):
 
 
 def test_scale_sets_the_size(meshes):
-    from taichi_soft.scene import scene_from_dict
+    from taichi_soft.sim.scene import scene_from_dict
 
     b = {"shape": "mesh", "mesh": str(meshes / "sphere.stl"), "n": 6, "scale": 0.5}
     s = scene_from_dict({"body": [b]})
@@ -121,7 +121,7 @@ def test_scale_sets_the_size(meshes):
 
 
 def test_mesh_cli_path_is_relative_to_the_current_directory(meshes, monkeypatch):
-    from taichi_soft.scene import load_scene
+    from taichi_soft.sim.scene import load_scene
 
     monkeypatch.chdir(meshes)
     s = load_scene("plane", ["body.0.mesh=sphere.stl", "body.0.n=6"])  # a mesh file alone makes a mesh body
@@ -134,7 +134,7 @@ def test_mesh_body_comes_to_rest_on_the_plane(meshes):
     """Dropped 1 m: every particle below 1 mm/s after 6 s, none inside the plane; each embedded
     surface vertex stays within half a spacing of where it sat among its particles at rest (its
     distance to the nearest particle it follows grows by less than h / 2)."""
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.simulation import Simulation
 
     sim = Simulation(_scene(meshes / "sphere.stl"))
     sim.advance(6000)
@@ -163,9 +163,9 @@ def test_mesh_body_comes_to_rest_on_the_plane(meshes):
 def test_mesh_body_on_a_cube(meshes):
     """A torus dropped onto a cube: body-body contact keeps their particles apart; the memory
     model counts the filled lattice."""
-    from taichi_soft.memory import estimate
-    from taichi_soft.scene import scene_from_dict
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.memory import estimate
+    from taichi_soft.sim.scene import scene_from_dict
+    from taichi_soft.sim.simulation import Simulation
 
     scene = scene_from_dict({
         "sim": {"dt": 1e-3, "duration": 1.0},

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from taichi_soft import lattice
-from taichi_soft.lattice import BEND, SHEAR, SPRING_KINDS, STRETCH
+from taichi_soft.sim.lattice import BEND, SHEAR, SPRING_KINDS, STRETCH
 
 from physics_helpers import accelerations, build, numeric_gradient, spring_energy
 
@@ -68,8 +68,8 @@ def _previous_adjacency(pairs, rest, group, n_particles):
 
 def test_builder_matches_first_principles_and_previous_builder():
     """Bodies n = 2..6 in one model: springs, rest lengths, groups and adjacency, exactly."""
-    from taichi_soft.bodies import BodySpec
-    from taichi_soft.builder import ModelBuilder
+    from taichi_soft.sim.bodies import BodySpec
+    from taichi_soft.sim.builder import ModelBuilder
 
     builder = ModelBuilder(gravity=(0.0, 0.0, 0.0))
     for n in _SIZES:
@@ -103,7 +103,7 @@ def test_builder_matches_first_principles_and_previous_builder():
 
 def test_adjacency_of_any_graph():
     """The generic constructor (springs given as host arrays, any order) gets the same adjacency."""
-    from taichi_soft.model import Model
+    from taichi_soft.sim.model import Model
 
     rng = np.random.default_rng(3)
     n_particles = 7
@@ -135,7 +135,7 @@ def test_rest_lengths_match_lattice_spacing(degrees):
     n, size = 5, 2.0
     model, _ = build(n=n, size=size, rotation_axis=(1.0, 2.0, 0.5), rotation_degrees=degrees)
     h = size / (n - 1)
-    from taichi_soft.spring_codes import group_kind
+    from taichi_soft.sim.spring_codes import group_kind
 
     kinds = group_kind(model.group_np)
     stretch_r = model.rest_np[kinds == STRETCH]

@@ -13,7 +13,7 @@ import time
 import pytest
 
 from taichi_soft.errors import UserError
-from taichi_soft.scene import load_scene
+from taichi_soft.sim.scene import load_scene
 
 from conftest import ROOT, missing_tool
 

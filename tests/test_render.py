@@ -69,8 +69,8 @@ def cli(*args, env=None, cwd=None):
 
 def small_scene(name):
     """A shipped scene with every body cut down to 4 x 4 x 4 particles."""
-    from taichi_soft.integrators import names
-    from taichi_soft.scene import load_scene
+    from taichi_soft.sim.integrators import names
+    from taichi_soft.sim.scene import load_scene
 
     n_bodies = len(load_scene(name).data["body"])
     return load_scene(name, [f"body.{b}.n=4" for b in range(n_bodies)], integrator_names=names())
@@ -109,7 +109,7 @@ def test_camera_matrices_match_ggui():
 
 @pytest.mark.parametrize("name", ["plane", "tilted_plane", "sphere", "bowl", "three_cubes", "free_float"])
 def test_default_camera_keeps_start_and_terrain_in_frame(name):
-    from taichi_soft.scene import load_scene
+    from taichi_soft.sim.scene import load_scene
 
     data = load_scene(name).data
     w, h = 1280, 720
@@ -128,7 +128,7 @@ def test_default_camera_keeps_every_body_in_frame_for_the_whole_run(name):
     the image as the default camera (following where it follows) sees it: checked by projection,
     without rendering. Bodies are cut to 4^3 particles (the camera, not the physics, is tested;
     a following camera keeps them in view whatever the contact model does)."""
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.simulation import Simulation
 
     scene = small_scene(name)
     sim = Simulation(scene, integrator="semi_implicit_euler")
@@ -149,7 +149,7 @@ def test_default_camera_keeps_every_body_in_frame_for_the_whole_run(name):
 
 
 def test_scene_camera_keys_override_default():
-    from taichi_soft.scene import load_scene
+    from taichi_soft.sim.scene import load_scene
 
     data = load_scene("plane", ["render.camera.position=[1, 2, 30]", "render.camera.fov=55"]).data
     cam = scene_camera(data, 16 / 9)
@@ -170,7 +170,7 @@ def test_frame_shows_bodies_and_terrain(renderer, name):
     cube, a terrain).
     """
     from taichi_soft.render.renderer import SimulationView
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.simulation import Simulation
 
     scene = small_scene(name)
     sim = Simulation(scene)
@@ -201,7 +201,7 @@ def test_fast_paths_match_the_per_pixel_reference(renderer, name):
     top-left rule and our nearer-then-smaller-key rule may pick different sides): isolated pixels.
     """
     from taichi_soft.render.renderer import SimulationView, TaichiRenderer
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.simulation import Simulation
 
     sim = Simulation(small_scene(name))
     sim.advance(300)  # mid-fall, the body deformed by its spin-up
@@ -223,7 +223,7 @@ def test_terrain_is_drawn_from_the_live_terrain(renderer):
     """A geometry changed at run time (``set_geometry``) is drawn: the renderer reads the
     terrain object the simulation collides with, not the scene file."""
     from taichi_soft.render.renderer import BACKGROUND, SimulationView
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.simulation import Simulation
 
     scene = small_scene("sphere")
     sim = Simulation(scene)
@@ -278,7 +278,7 @@ def check_bodies_and_terrain(img, scene, cam):
 
 def test_springs_and_particles_toggle(renderer):
     from taichi_soft.render.renderer import SimulationView
-    from taichi_soft.simulation import Simulation
+    from taichi_soft.sim.simulation import Simulation
 
     sim = Simulation(small_scene("free_float"))
     cam = scene_camera(sim.scene.data, renderer.aspect)

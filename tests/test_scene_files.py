@@ -1,7 +1,7 @@
 """Issue 24: the shipped scenes' defaults show what they are about."""
 import pytest
 
-from taichi_soft.scene import load_scene
+from taichi_soft.sim.scene import load_scene
 
 
 def test_the_sphere_scene_ends_soon_after_the_cube_leaves_the_ball(make_sim):

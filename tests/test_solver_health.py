@@ -7,8 +7,8 @@ solvers fail no step: tests/test_f32_implicit.py).
 """
 import taichi as ti
 
-from taichi_soft.integrators.implicit.health import assess
-from taichi_soft.integrators.implicit.newton import ImplicitEuler
+from taichi_soft.sim.integrators.implicit.health import assess
+from taichi_soft.sim.integrators.implicit.newton import ImplicitEuler
 
 
 @ti.data_oriented
@@ -28,7 +28,7 @@ def test_failed_line_searches_are_said_and_the_run_exits_non_zero(monkeypatch, c
 
     from taichi_soft import cli
     from taichi_soft.commands import common
-    from taichi_soft.integrators import REGISTRY
+    from taichi_soft.sim.integrators import REGISTRY
 
     monkeypatch.setitem(REGISTRY, "uphill", _Uphill)
     monkeypatch.setattr(_Uphill, "name", "uphill")
@@ -65,7 +65,7 @@ def test_unconverged_steps_are_counted_and_said_when_they_are_most():
     exactly Coulomb's mu g h per step. ``assess`` speaks when unconverged steps are most."""
     from taichi_soft.bench import precision as P
     from taichi_soft.bench.plausibility import PUSH_SPEED, push_run
-    from taichi_soft.integrators.implicit.health import UNCONVERGED_WARN_SHARE
+    from taichi_soft.sim.integrators.implicit.health import UNCONVERGED_WARN_SHARE
 
     scene, sets, _ = push_run(True)
     h, steps = 1 / 30, 6

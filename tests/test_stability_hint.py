@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from taichi_soft.integrators import linear_stability as ls
+from taichi_soft.sim.integrators import linear_stability as ls
 
 # A small cube just above the plane: it lands within the run.
 SMALL = ["body.0.n=3", "body.0.center=[0.0, 3.5, 0.0]"]

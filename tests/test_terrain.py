@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from taichi_soft.integrators import REGISTRY
+from taichi_soft.sim.integrators import REGISTRY
 
 from physics_helpers import build, simulate
 
@@ -144,7 +144,7 @@ def test_restitution_sets_rebound_speed(kr):
                            geometry={"point": [0.0, 0.0, 0.0], "normal": [0.0, 1.0, 0.0]},
                            contact={"restitution": kr, "friction": 0.0}, center=(0.0, 1.1, 0.0),
                            stretch=(1e-3, 0.0), shear=(1e-3, 0.0), bend=(1e-3, 0.0))
-    from taichi_soft.integrators import make_integrator
+    from taichi_soft.sim.integrators import make_integrator
 
     integ = make_integrator("rk4", model, terrain)
     state = model.state()

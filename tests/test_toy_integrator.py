@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_soft.footprint import FieldCounts
-from taichi_soft.integrators import REGISTRY, make_integrator
-from taichi_soft.integrators.base import Integrator
-from taichi_soft.integrators.options import Option, int_at_least, one_of
+from taichi_soft.sim.footprint import FieldCounts
+from taichi_soft.sim.integrators import REGISTRY, make_integrator
+from taichi_soft.sim.integrators.base import Integrator
+from taichi_soft.sim.integrators.options import Option, int_at_least, one_of
 
 
 @ti.data_oriented
@@ -108,8 +108,8 @@ def test_the_memory_check_estimates_it_from_its_own_table(toy):
     """The estimate's fields are what a real toy run allocates (as tests/test_memory.py measures),
     and exceed semi-implicit Euler's (the same force pass) by its own table, 3 reals per particle."""
     from taichi_soft import memory, runtime
-    from taichi_soft.forces import Diagnostics
-    from taichi_soft.scene import load_scene
+    from taichi_soft.sim.forces import Diagnostics
+    from taichi_soft.sim.scene import load_scene
 
     from physics_helpers import build
     from test_memory import _field_bytes, _fields

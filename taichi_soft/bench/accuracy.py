@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from ..scene import load_scene
-from ..simulation import Simulation
+from ..sim.scene import load_scene
+from ..sim.simulation import Simulation
 from .timing import time_one
 
 # The two cases of the work-precision study: (scene, overrides, end time [s]).

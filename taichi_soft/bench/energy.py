@@ -50,7 +50,7 @@ def cases(quick: bool) -> list[dict]:
 def pair_energy(sim, x: np.ndarray, dt: float) -> tuple[float, float]:
     """(body-body penalty energy [J] at positions ``x``, deepest overlap between bodies [m]):
     the step's pair term over h^2 (``pairs.py``), over every pair of particles of different bodies."""
-    from ..collision import contact_radii
+    from ..sim.collision import contact_radii
 
     if len(sim.model.bodies) < 2:
         return 0.0, 0.0
@@ -71,9 +71,9 @@ def _simulation(case: dict, sims: dict):
     scene stiffnesses. One per run and key, reused across stiffness and dt: every new Simulation
     allocates its own fields, and a Taichi 1.7 runtime crashes (SIGSEGV) after too many field trees
     -- the full matrix building one per case died after about 100 of its 108 cases."""
-    from ..integrators import names
-    from ..scene import load_scene
-    from ..simulation import Simulation
+    from ..sim.integrators import names
+    from ..sim.scene import load_scene
+    from ..sim.simulation import Simulation
 
     key = (case["solver"], case["scene"], tuple(case["sets"]))
     if key not in sims:

@@ -32,8 +32,8 @@ def _kernels(sim):
     """{variant: step(xo, vo, xn, vn)} on the simulation's model, plus its helper fields."""
     import taichi as ti
 
-    from ..forces import spring_force
-    from ..rows import SpringRows
+    from ..sim.forces import spring_force
+    from ..sim.rows import SpringRows
 
     m = sim.model
     m.ensure_adjacency()
@@ -103,8 +103,8 @@ def main(argv=None) -> int:
     runtime.init("cpu", a.precision, fast_math=not a.no_fast_math, cpu_max_num_threads=a.threads)
     import taichi as ti
 
-    from ..scene import load_scene
-    from ..simulation import Simulation
+    from ..sim.scene import load_scene
+    from ..sim.simulation import Simulation
     from .speed_worker import REFERENCE_SCENE
 
     def sim_for(forces):

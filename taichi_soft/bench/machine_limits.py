@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import taichi as ti
 
-from ..forces import SLAB_STRIDE
+from ..sim.forces import SLAB_STRIDE
 from .timing import time_one
 
 

@@ -5,7 +5,7 @@ one step as a task (``taichi_soft.tasks``: a fresh process, one at a time), whic
 peak resident set size (``VmHWM`` from /proc/self/status) and, on CUDA, the device memory
 nvidia-smi shows for it at the end of the run.
 Implicit methods run with one Newton / global iteration and a few CG iterations: their memory does
-not depend on the iteration counts, their time does. Each row carries ``taichi_soft.memory``'s
+not depend on the iteration counts, their time does. Each row carries ``taichi_soft.sim.memory``'s
 estimate for the same run, so the model that refuses too-large runs is checked here.
 
 Sizes: n = 10, 20, 40, 80 and the largest n (up to the scene limit) whose estimate fits in
@@ -13,9 +13,9 @@ Sizes: n = 10, 20, 40, 80 and the largest n (up to the scene limit) whose estima
 """
 from __future__ import annotations
 
-from .. import memory
-from ..scene import load_scene
-from ..scene_validation import MAX_N
+from ..sim import memory
+from ..sim.scene import load_scene
+from ..sim.scene_validation import MAX_N
 
 SIZES = (10, 20, 40, 80)
 # One integrator per family and precision (the explicit family's two ends, both implicit solvers).
@@ -132,7 +132,7 @@ def markdown(result: dict) -> str:
     rows = result["rows"]
     out = ["## Memory", "",
            "Peak resident memory (VmHWM) of a one-step `run --scene plane --set body.0.n=N`, each size in a fresh "
-           "process, against `taichi_soft/memory.py`'s estimate (the one `run` checks before it starts). "
+           "process, against `taichi_soft/sim/memory.py`'s estimate (the one `run` checks before it starts). "
            "Per particle: the whole peak / particles (the process base dominates small n). "
            f"The largest size is the largest n whose estimate fits in {result['fit_fraction']:.0%} of the memory "
            "available when the study started"

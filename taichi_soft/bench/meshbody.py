@@ -35,7 +35,7 @@ def _torus(path: Path, major: int = 320, minor: int = 160) -> int:
 
 def measure_build(path: Path, repeats: int) -> dict:
     """Median and all wall times [s] of building the n = 20 body from ``path``, cache emptied."""
-    from .. import meshbody
+    from ..sim import meshbody
 
     t = time_one(lambda: meshbody.mesh_lattice(path, N, size=4.0), repeats, setup=meshbody._cached.cache_clear,
                  sync=no_sync)  # numpy work, no kernels in flight
@@ -51,8 +51,8 @@ def measure_frames(path: Path, repeats: int, kind: str) -> dict:
     from ..render.camera import scene_camera
     from ..render.choose import make_renderer
     from ..render.renderer import SimulationView
-    from ..scene import scene_from_dict
-    from ..simulation import Simulation
+    from ..sim.scene import scene_from_dict
+    from ..sim.simulation import Simulation
 
     plane = {"kind": "plane", "point": [0, -1, 0], "normal": [0, 1, 0]}
     bodies = {"cube": {"n": N, "size": 4.0, "center": [0.0, 3.0, 0.0]},

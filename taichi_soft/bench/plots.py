@@ -94,7 +94,7 @@ def speed_bars(rows: list[dict], path, title: str):
 def precision_fronts(rows: list[dict], path, cost_key: str, cost_label: str):
     """Error [m] against cost, one panel per (case, stiffness), one line per (integrator, tolerance);
     each family's Pareto front dashed (implicit black, explicit grey)."""
-    from ..integrators import REGISTRY
+    from ..sim.integrators import REGISTRY
     from .verdict import pareto_front
 
     cases = list(dict.fromkeys(r["case"] for r in rows))

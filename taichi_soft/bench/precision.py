@@ -98,9 +98,9 @@ CASES = ("flat", "slide", "ensemble")
 
 # -- one run -------------------------------------------------------------------------------------------
 def build(scene: str, sets: list[str], name: str, options: dict | None = None):
-    from ..integrators import names
-    from ..scene import load_scene
-    from ..simulation import Simulation
+    from ..sim.integrators import names
+    from ..sim.scene import load_scene
+    from ..sim.simulation import Simulation
 
     return Simulation(load_scene(scene, sets, integrator_names=names()), name, 1e-3, options=options or {})
 
@@ -113,7 +113,7 @@ def set_stiffness(sim, scale: float, base_k):
 
 def stable_limit(sim, name: str) -> float:
     """Linear stable step [s] of explicit ``name`` on the simulation's model at its current stiffness."""
-    from ..integrators.linear_stability import scene_modes, stable_limit as limit
+    from ..sim.integrators.linear_stability import scene_modes, stable_limit as limit
 
     w2, ratios = scene_modes(sim.model)
     return limit(name, w2, ratios)
@@ -220,7 +220,7 @@ def compare(run: dict, ref: dict) -> dict:
 
 def spring_passes(name: str, run: dict, n_springs: int) -> float:
     """Passes over all springs x springs of ``run`` (``Integrator.spring_passes_per_step``)."""
-    from ..integrators import REGISTRY
+    from ..sim.integrators import REGISTRY
 
     return float(REGISTRY[name].spring_passes_per_step(run["stats"]) * run["steps"] * n_springs)
 
@@ -263,7 +263,7 @@ def method_task(case: str, name: str, tolerance: str, scales, refs: dict, quick:
     fields); the wall time is the median of REPEATS timed runs (1 with ``quick``), not interleaved
     with other methods (each task is its own process)."""
     repeats = 1 if quick else REPEATS
-    from ..integrators import REGISTRY
+    from ..sim.integrators import REGISTRY
 
     _task_runtime()
     implicit = REGISTRY[name].implicit

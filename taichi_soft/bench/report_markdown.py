@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import math
 
-from ..integrators import REGISTRY
-from ..integrators.base import DIVERGENCE_SPEED2
+from ..sim.integrators import REGISTRY
+from ..sim.integrators.base import DIVERGENCE_SPEED2
 from . import stability
 
 WIN_MARGIN = 1.1  # a win: at least this ratio of wall times (more than the spread within one run)

@@ -9,7 +9,7 @@ import json
 import os
 from pathlib import Path
 
-from ..integrators import REGISTRY
+from ..sim.integrators import REGISTRY
 from . import machine
 from .files import write_csv, write_text
 from .speed import measure as measure_speed

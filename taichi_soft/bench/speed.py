@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import taichi as ti
 
-from ..scene import load_scene
-from ..simulation import Simulation
+from ..sim.scene import load_scene
+from ..sim.simulation import Simulation
 from .timing import time_one
 
 

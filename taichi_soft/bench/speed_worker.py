@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import taichi as ti
 
-from ..scene import load_scene
-from ..simulation import Simulation
+from ..sim.scene import load_scene
+from ..sim.simulation import Simulation
 from .machine_limits import thread_overlap
 from .timing import no_sync, time_one
 

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import math
 
-from ..scene import load_scene
-from ..simulation import Simulation
+from ..sim.scene import load_scene
+from ..sim.simulation import Simulation
 
 SEED_TABLE = {"explicit_euler": 0.0020, "midpoint": 0.0045, "rk4": 0.0030}  # the seed's plane results [s]
 

@@ -14,7 +14,7 @@ import math
 import statistics
 from pathlib import Path
 
-from ..integrators import REGISTRY
+from ..sim.integrators import REGISTRY
 from . import accuracy, stability
 from .files import write_csv
 from .timing import time_one

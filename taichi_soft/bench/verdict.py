@@ -40,7 +40,7 @@ def cost_at_error(front: list[tuple[float, float]], error: float) -> float | Non
 def verdict(rows: list[dict], cost_key: str = "wall_per_sim_s", errors=ERRORS) -> list[dict]:
     """Per (case, stiffness, error): the cheapest cost of each family on its front and their ratio
     (explicit / implicit: > 1 means implicit is cheaper); ``inf`` when only implicit reaches it."""
-    from ..integrators import REGISTRY
+    from ..sim.integrators import REGISTRY
 
     out = []
     keys = list(dict.fromkeys((r["case"], r["stiffness_scale"]) for r in rows))

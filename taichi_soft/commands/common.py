@@ -185,7 +185,7 @@ def render_options_from_args(args, scene):
 
 
 def resolution_arg(text):
-    from ..scene_validation import parse_resolution
+    from ..sim.scene_validation import parse_resolution
 
     try:
         return parse_resolution(text)
@@ -204,8 +204,8 @@ def float_arg(flag):
 
 def load_scene_from_args(args):
     """Scene from --scene and --set, with --integrator/--dt/--duration applied on top."""
-    from ..integrators import names
-    from ..scene import load_scene
+    from ..sim.integrators import names
+    from ..sim.scene import load_scene
 
     flags = {}
     for flag, key in (("integrator", "sim.integrator"), ("dt", "sim.dt"), ("duration", "sim.duration"),
@@ -261,7 +261,7 @@ def parse_name_list(text: str, flag: str, known: list[str], kind: str, hint: str
 
 def parse_integrator_list(text: str) -> list[str]:
     """``"explicit_euler,rk4"`` -> names, each registered, no repeats; else ``UserError``."""
-    from ..integrators import names
+    from ..sim.integrators import names
 
     return parse_name_list(text, "--integrators", names(), "integrator",
                            "give distinct names separated by commas, e.g. explicit_euler,rk4")

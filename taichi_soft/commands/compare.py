@@ -1,7 +1,7 @@
 """``compare``: one scene with several integrators at the same dt, one mosaic video."""
 from __future__ import annotations
 
-from ..memory import check_fits
+from ..sim.memory import check_fits
 from . import common
 from .common import (DEFAULT_OUT, EXIT_OK, add_render_args, add_scene_args, load_scene_from_args,
                      parse_integrator_list, print_outputs, render_options_from_args)

@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 from ..errors import UserError
-from ..memory import check_fits
+from ..sim.memory import check_fits
 from . import common
 from .common import (EXIT_OK, EXIT_REPLAY_DIFFERS, add_scene_args, check_output_path, load_scene_from_args,
                      resolution_arg)

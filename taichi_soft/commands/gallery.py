@@ -30,12 +30,12 @@ def cmd_gallery(args) -> int:
     """``gallery``: every terrain x integrator video, a compare mosaic per terrain, index.html."""
     from ..gallery import DEFAULT_SCENES, PAGE, Plan, check_plan, run_gallery
     from ..render.outputs import check_video_size
-    from ..scene import scene_names
+    from ..sim.scene import scene_names
     from ..tasks import make_executor, report_failures
 
     terrains = parse_name_list(args.terrains or ",".join(DEFAULT_SCENES), "--terrains", scene_names(), "scene",
                                "give distinct scene names separated by commas")
-    from ..integrators import names
+    from ..sim.integrators import names
 
     integrators = parse_integrator_list(args.integrators or ",".join(names()))
     for flag, value in (("--duration", args.duration), ("--dt", args.dt)):

@@ -12,8 +12,8 @@ def add_parser(sub):
 
 def cmd_list(args) -> int:
     from .. import runtime
-    from ..integrators import REGISTRY
-    from ..scene import SCENES_DIR, scene_names
+    from ..sim.integrators import REGISTRY
+    from ..sim.scene import SCENES_DIR, scene_names
 
     print(f"scenes (in {SCENES_DIR}):")
     for name in scene_names():

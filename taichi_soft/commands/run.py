@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from ..errors import OutputError
-from ..memory import check_fits
+from ..sim.memory import check_fits
 from ..outfiles import finite_or_none
 from . import common
 from .common import (EXIT_DIVERGED, EXIT_OK, EXIT_OUTPUT, EXIT_UNRELIABLE, add_render_args, add_scene_args,
@@ -30,7 +30,7 @@ def cmd_run(args) -> int:
     import numpy as np
 
     from ..progress import CountBar
-    from ..simulation import Simulation, body_lines, states_arrays, step_count
+    from ..sim.simulation import Simulation, body_lines, states_arrays, step_count
 
     scene = load_scene_from_args(args)
     check_fits(scene.data, None, args.precision, args.arch, record_states=args.states is not None,
@@ -139,7 +139,7 @@ def cmd_run(args) -> int:
 
 def _note_whole_steps(duration: float, dt: float):
     """Say what is simulated when the duration is not a whole number of steps."""
-    from ..simulation import step_count
+    from ..sim.simulation import step_count
 
     steps = step_count(duration, dt)
     if abs(steps * dt - duration) > 1e-9 * duration:

@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 import taichi as ti
 
-from ..lattice import SPRING_KINDS
+from ..sim.lattice import SPRING_KINDS
 from ..render.camera import CameraSpec, scene_camera
 from ..render.renderer import SimulationView, aim_camera, apply_camera, draw_view
 from . import hud

@@ -6,7 +6,7 @@ run-time parameters (fields and kernel arguments), so a slider never triggers a 
 * integrator: switched live, continuing from the current state. Each integrator is built once
   per terrain and kept (building one compiles its kernels, 1-7 s on a CPU);
 * terrain: a new ``Simulation`` of the same scene with ``terrain.kind`` overridden (its kernels
-  are compiled for that shape only, see ``taichi_soft.terrain``); every other setting is carried
+  are compiled for that shape only, see ``taichi_soft.sim.terrain``); every other setting is carried
   over and the cube starts again from its initial state;
 * dt, stiffness, damping, restitution, friction, particle mass, gravity: live, next step;
 * drop height and rotation: change the initial pose, applied on ``reset()``;
@@ -33,12 +33,12 @@ import math
 import numpy as np
 
 from ..errors import UserError
-from ..grab import attach as attach_grab
-from ..integrators import REGISTRY, make_integrator
-from ..lattice import SPRING_KINDS, rotation_matrix
-from ..scene import load_scene
-from ..simulation import Simulation
-from ..terrain import KINDS as TERRAIN_KINDS
+from ..sim.grab import attach as attach_grab
+from ..sim.integrators import REGISTRY, make_integrator
+from ..sim.lattice import SPRING_KINDS, rotation_matrix
+from ..sim.scene import load_scene
+from ..sim.simulation import Simulation
+from ..sim.terrain import KINDS as TERRAIN_KINDS
 from .controller_state import ENERGY_KEYS, EnergyHistory, Settings
 from .live_controls import HandControls, LiveParameters, recorded
 
@@ -81,7 +81,7 @@ class DemoController(LiveParameters, HandControls):
 
     # -- construction -----------------------------------------------------------------------
     def _load(self, overrides):
-        from ..integrators import names
+        from ..sim.integrators import names
 
         return load_scene(self.scene_name, overrides, integrator_names=names())
 

@@ -10,7 +10,7 @@ import functools
 
 import numpy as np
 
-from ..lattice import SPRING_KINDS
+from ..sim.lattice import SPRING_KINDS
 
 
 def recorded(method):

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from ..lattice import SPRING_KINDS
+from ..sim.lattice import SPRING_KINDS
 
 PANEL_X, PANEL_W = 0.7, 0.3  # ImGui control panel: right 30 % of the window, in two columns
 # Letter keys only: Taichi 1.7.4's window never delivers digit or function keys (taichi #5277).

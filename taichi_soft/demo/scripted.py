@@ -109,7 +109,7 @@ def soak(s: Session, minutes: float, seed: int = 0) -> dict:
 
 def main(argv=None) -> int:
     from ..runtime import init
-    from ..scene_validation import parse_resolution
+    from ..sim.scene_validation import parse_resolution
     from .app import DemoApp
     from .controller import DemoController
     from .display import open_demo_window

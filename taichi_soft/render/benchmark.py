@@ -162,9 +162,9 @@ def _pipelines(sim, kind, width, height, tmp, rounds: int = 3, frames: int = 10)
 def main(argv=None) -> int:
     from ..errors import UserError
     from ..runtime import init
-    from ..scene import load_scene
-    from ..scene_validation import parse_resolution
-    from ..simulation import Simulation
+    from ..sim.scene import load_scene
+    from ..sim.scene_validation import parse_resolution
+    from ..sim.simulation import Simulation
     from . import overlay
     from .camera import scene_camera
     from .renderer import Renderer, SimulationView, TaichiRenderer

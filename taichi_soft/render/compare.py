@@ -37,7 +37,7 @@ def grid_shape(n: int, width: int, height: int) -> tuple[int, int]:
 
 def solver_options(scene, integrator: str) -> dict:
     """The scene's ``[solver]`` options that ``integrator`` understands (the others are for other methods)."""
-    from ..integrators import REGISTRY
+    from ..sim.integrators import REGISTRY
 
     accepted = REGISTRY[integrator].OPTIONS
     return {k: v for k, v in scene.data.get("solver", {}).items() if k in accepted}
@@ -76,7 +76,7 @@ class Comparison(FrameJob):
     """
 
     def __init__(self, scene, integrators: list[str], options, dt: float | None = None):
-        from ..simulation import Simulation
+        from ..sim.simulation import Simulation
         from .camera import scene_camera
         from .choose import make_renderer
         from .renderer import SimulationView
@@ -107,7 +107,7 @@ class Comparison(FrameJob):
 
         ``progress(frames_done, time)`` is called after each frame.
         """
-        from ..simulation import frame_steps, step_count
+        from ..sim.simulation import frame_steps, step_count
 
         total = step_count(duration, self.dt)
         schedule = frame_steps(total, self.options.fps, self.dt)

@@ -257,7 +257,7 @@ class _Mirror:
     terrain, scene, integrator name, dt and a state whose positions are the ones received."""
 
     def __init__(self, scene):
-        from ..simulation import build_world
+        from ..sim.simulation import build_world
 
         data = scene.data
         self.scene = scene

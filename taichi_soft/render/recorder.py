@@ -196,7 +196,7 @@ class FrameLabels:
 
 def frame_count(duration: float, dt: float, fps: float) -> int:
     """Frames ``Simulation.run`` visits for ``duration`` [s] at ``dt`` [s] and ``fps``."""
-    from ..simulation import frame_steps, step_count
+    from ..sim.simulation import frame_steps, step_count
 
     return len(frame_steps(step_count(duration, dt), fps, dt))
 

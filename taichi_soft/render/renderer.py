@@ -13,8 +13,8 @@ from typing import NamedTuple
 import numpy as np
 import taichi as ti
 
-from ..lattice import SPRING_KINDS
-from ..spring_codes import group_kind
+from ..sim.lattice import SPRING_KINDS
+from ..sim.spring_codes import group_kind
 from .camera import CameraSpec
 from .embedded import body_surface
 from .lighting import LightRig, apply_rig_to_ggui, light_rig, shade

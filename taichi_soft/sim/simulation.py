@@ -11,11 +11,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import runtime
+from .. import runtime
 from .bodies import BodySpec
 from .builder import ModelBuilder
 from .collision import BodyContacts, body_radius
-from .errors import UserError
+from ..errors import UserError
 from .lattice import SPRING_KINDS, rotation_matrix
 from .forces import Diagnostics
 from .integrators import make_integrator

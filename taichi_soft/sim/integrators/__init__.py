@@ -1,9 +1,9 @@
 """Integrator registry: the CLI, tests and benchmarks all read ``REGISTRY``."""
 from __future__ import annotations
 
-from ..errors import UserError
-from . import explicit  # noqa: F401  (registers the explicit family)
-from . import implicit  # noqa: F401  (registers implicit_euler, fast_mass_spring)
+from ...errors import UserError
+from . import explicit  # noqa: F401  registers the explicit family
+from . import implicit  # noqa: F401  registers implicit_euler, fast_mass_spring
 from .base import REGISTRY, Integrator, register
 
 __all__ = ["REGISTRY", "Integrator", "register", "make_integrator", "integrator_class", "names"]

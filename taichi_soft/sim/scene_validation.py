@@ -11,7 +11,7 @@ import copy
 import math
 
 from .bodies import BodySpec
-from .errors import UserError
+from ..errors import UserError
 from .terrain import CONTACT_DEFAULTS
 from .terrain import DEFAULTS as TERRAIN_DEFAULTS
 from .terrain import KINDS as TERRAIN_KINDS

@@ -23,7 +23,7 @@ first diverged step index.
 
 import taichi as ti
 
-from ..errors import UserError
+from ...errors import UserError
 from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
 from ..linalg import SkylineCholesky

@@ -15,8 +15,8 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import UserError
-from .paths import PACKAGE_DIR, ROOT
+from ..errors import UserError
+from ..paths import PACKAGE_DIR, ROOT
 from .scene_overrides import apply_overrides, set_path
 from .scene_validation import validate
 

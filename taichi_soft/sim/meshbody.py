@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
 from .lattice import SPRING_KINDS, SPRING_OFFSETS
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply")

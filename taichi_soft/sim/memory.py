@@ -27,7 +27,7 @@ import math
 import subprocess
 
 from . import collision
-from .errors import UserError
+from ..errors import UserError
 from .footprint import MODEL, STATE, Buffers, Counts
 
 _MB = 2**20

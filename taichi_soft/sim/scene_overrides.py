@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import tomllib
 
-from .errors import UserError
+from ..errors import UserError
 from .scene_validation import TOP_KEYS
 
 
