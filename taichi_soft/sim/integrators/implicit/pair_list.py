@@ -146,13 +146,7 @@ class PairList(BodyGrid):
         for p in range(self.n_pairs[None]):
             if self.lam[p] > 0:
                 ti.atomic_add(self.keep_count[self.pa[p]], 1)
-        for _ in range(1):  # one thread: the prefix sum is sequential
-            total = 0
-            for i in range(self.n):
-                self.keep_start[i] = total
-                total += self.keep_count[i]
-                self.keep_count[i] = 0  # reused as the fill cursor
-            self.keep_start[self.n] = total
+        _starts(self.keep_count, self.keep_start, self.n)
         for p in range(self.n_pairs[None]):
             if self.lam[p] > 0:
                 i = self.pa[p]
@@ -198,13 +192,7 @@ class PairList(BodyGrid):
         for i in range(self.n):
             if self.near[i]:
                 ti.atomic_add(self.bucket_count[self._bucket(self._cell_of(self.mid[i]))], 1)
-        for _ in range(1):  # one thread: the prefix sum is sequential
-            total = 0
-            for h in range(self.table_size):
-                self.bucket_start[h] = total
-                total += self.bucket_count[h]
-                self.bucket_count[h] = 0  # reused as the fill cursor
-            self.bucket_start[self.table_size] = total
+        _starts(self.bucket_count, self.bucket_start, self.table_size)
         for i in range(self.n):
             if self.near[i]:
                 h = self._bucket(self._cell_of(self.mid[i]))
@@ -247,3 +235,16 @@ class PairList(BodyGrid):
                             self.pb[p] = j
                         else:
                             ti.atomic_add(self.acc[P_OVERFLOW], 1.0)
+
+
+@ti.func
+def _starts(count: ti.template(), start: ti.template(), size):
+    """start[k] = count[0] + ... + count[k-1] for k <= size (one thread: the prefix sum is
+    sequential); count is zeroed, to be reused as the fill cursor."""
+    for _ in range(1):
+        total = 0
+        for k in range(size):
+            start[k] = total
+            total += count[k]
+            count[k] = 0
+        start[size] = total
