@@ -6,7 +6,8 @@ import taichi as ti
 from taichi.lang.field import Field
 from taichi.lang.matrix import MatrixField
 
-from taichi_soft import memory, runtime
+from taichi_soft import runtime
+from taichi_soft.sim import memory
 from taichi_soft.sim.scene import load_scene
 
 _BYTES = {ti.f64: 8, ti.f32: 4, ti.i32: 4, ti.i64: 8, ti.i8: 1, ti.u8: 1}

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from taichi_soft import lattice
+from taichi_soft.sim import lattice
 from taichi_soft.sim.lattice import BEND, SHEAR, SPRING_KINDS, STRETCH
 
 from physics_helpers import accelerations, build, numeric_gradient, spring_energy
@@ -119,7 +119,7 @@ def test_adjacency_of_any_graph():
 
 
 def test_encodings_round_trip():
-    from taichi_soft import spring_codes as M
+    from taichi_soft.sim import spring_codes as M
 
     for s in (0, 1, 17):
         assert M.is_end_a(M.end_a_code(s)) and not M.is_end_a(M.end_b_code(s))

@@ -107,7 +107,8 @@ def test_list_and_run_take_it(toy, monkeypatch, capsys, tmp_path):
 def test_the_memory_check_estimates_it_from_its_own_table(toy):
     """The estimate's fields are what a real toy run allocates (as tests/test_memory.py measures),
     and exceed semi-implicit Euler's (the same force pass) by its own table, 3 reals per particle."""
-    from taichi_soft import memory, runtime
+    from taichi_soft import runtime
+    from taichi_soft.sim import memory
     from taichi_soft.sim.forces import Diagnostics
     from taichi_soft.sim.scene import load_scene
 
