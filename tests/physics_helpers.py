@@ -75,3 +75,22 @@ def numeric_gradient(fn, x, h=1e-6) -> np.ndarray:
         xm[idx] -= h
         grad[idx] = (fn(xp) - fn(xm)) / (2 * h)
     return grad
+
+
+def default_cube_sim(cache: dict, terrain: str, integrator: str, dt: float, stiffness: float = 1.0):
+    """The scene ``terrain``'s default cube with ``integrator`` (built once into ``cache``: each test
+    module keeps its own, as each has its own Taichi runtime), reset, at ``dt`` [s], its springs'
+    stiffness ``stiffness`` x 2000 N/m."""
+    from taichi_soft.sim.integrators import names
+    from taichi_soft.sim.scene import load_scene
+    from taichi_soft.sim.simulation import Simulation
+
+    key = (terrain, integrator)
+    if key not in cache:
+        cache[key] = Simulation(load_scene(terrain, integrator_names=names()), integrator, dt)
+    sim = cache[key]
+    for kind in ("stretch", "shear", "bend"):
+        sim.model.set_spring_params(0, kind, k=2000.0 * stiffness)
+    sim.set_dt(dt)
+    sim.reset()
+    return sim
