@@ -4,9 +4,9 @@ The solver knows when a step went wrong: its line search found no decrease befor
 converged (the step ends at the last accepted iterate, short of the solution), the energy
 clamp had to take energy out of the velocities (the step ended with more energy than it began
 with), most steps stopped unconverged, or candidate body-contact pairs did not fit the pair
-list (their contacts were missed). A few such steps in a long run are worth a line; when they are a large share of the steps
-the result is driven by the fallback rather than by the physics, and the run must not pass as a
-success (``run`` exits with ``EXIT_UNRELIABLE``).
+list (their contacts were missed). A few such steps in a long run are worth a line; when they
+are a large share of the steps the result is driven by the fallback rather than by the physics,
+and the run must not pass as a success (``run`` exits with ``EXIT_UNRELIABLE``).
 """
 
 # A warning is printed when any step's solve failed or the clamp acted on at least this share of
@@ -19,9 +19,9 @@ MEANINGLESS_SHARE = 0.5
 # 1/30 s, stopped by stalled Newton steps at 22-53 m/s^2 against a tolerance of 0.1, lost 10x the
 # velocity Coulomb friction takes; converged, it lost exactly mu g h per step.)
 UNCONVERGED_FACTOR = 10.0
-# Unconverged steps are common at frame steps (13-62 % of the
-# default scenes' steps at 1/30 s end above it, mostly around impacts), so a line is printed
-# only when they are the majority: then the run shows the iteration cap, not the method.
+# Unconverged steps are common at frame steps (13-62 % of the default scenes' steps at 1/30 s end
+# above it, mostly around impacts), so a line is printed only when they are the majority: then
+# the run shows the iteration cap, not the method.
 UNCONVERGED_WARN_SHARE = 0.5
 
 
