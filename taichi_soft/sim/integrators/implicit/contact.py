@@ -98,6 +98,7 @@ class ContactSet:
         nrm = self.normal[i]
         lam_old = self.lam[i]
         lam_new = lam_old
+        end = ti.cast(0.0, float)  # lam_end: the candidate of a particle still held here
         if self.active[i]:
             c = gi.dot(nrm)  # candidate multiplier: h^2 times the normal force the surface must supply
             # The margin grows with each release in this step (hysteresis against chatter); a
@@ -105,21 +106,19 @@ class ContactSet:
             # friction, would carry more than the body's real load.
             margin = m.mass[i] * dt * dt * ti.max(self.release_tol[None], self.sc[S.RES_PREV]) \
                 * (1.0 + 3.0 * self.released[i])
-            self.lam_end[i] = 0.0
             if c < -margin:
                 self.active[i] = 0
                 self.released[i] += 1
                 lam_new = 0.0
             else:
                 cand = ti.max(c, 0.0)
-                self.lam_end[i] = cand
+                end = cand
                 if self.ctl[S.UPDATE] or lam_old == 0:
                     lam_new = cand
                 self.sc[S.LAM_CHANGE] += ti.abs(cand - lam_new)
                 self.sc[S.LAM_SUM] += cand
         else:
             lam_new = 0.0
-            self.lam_end[i] = 0.0
         fh = ti.Matrix.zero(float, 3, 3)
         if lam_new != lam_old or lam_new > 0:
             f0, fg, fh1 = self._friction(i, xi, nrm, 1.0)
@@ -127,6 +126,7 @@ class ContactSet:
             gi += lam_new * fg
             fh = lam_new * fh1
         self.lam[i] = lam_new
+        self.lam_end[i] = end
         self.fric_hess[i] = fh
         return gi
 

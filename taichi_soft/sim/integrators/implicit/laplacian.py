@@ -61,17 +61,17 @@ class LaplacianMatrix:
         later = (cls.FIELDS + STATE).bytes(counts.particles, counts.springs, real_bytes)
         return out + Buffers(transient=max(0, 16 * counts.springs + 16 * counts.particles - later))
 
-    def _init_laplacian(self, model, factorise: bool):
+    def _init_laplacian(self, model, factorise: bool, contact_auto: bool):
         self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
         self.diag = ti.field(float, model.n_particles)  # diagonal of M + L [kg] (0 for pinned particles)
         self.chol = SkylineCholesky(model.n_particles, model.pairs_np) if factorise else None
         self._matrix_dt = None  # the dt [s] A was built for; None: rebuild (the model changed)
         self.factorizations = 0
-        # contact_solve = auto: the scaled contact step while the springs are soft at this step,
-        # h^2 k_max / m_min <= SCALED_CONTACT_MAX_STIFFNESS (set with A: dt or the model changed).
-        self.stiff_ratio = ti.field(float, ())
-        self.contact_auto = ti.field(ti.i32, ())
-        self.contact_auto[None] = int(self.options_contact_solve == "auto")
+        # 1: the scaled contact step this step (contact_solve = scaled; with auto, while the springs
+        # are soft at this step, h^2 k_max / m_min <= SCALED_CONTACT_MAX_STIFFNESS). Set with A, when
+        # dt or the model changed; contact_auto is an option, so a compile-time constant.
+        self.contact_auto = contact_auto
+        self.scaled_now = ti.field(ti.i32, ())
 
     def notify_model_changed(self, flags: int):
         super().notify_model_changed(flags)
@@ -92,14 +92,6 @@ class LaplacianMatrix:
         self._matrix_dt = float(dt)
         self.factorizations += 1
 
-    @ti.func
-    def _scaled_contact_now(self):
-        """The scaled contact step for this step (``contact_solve`` scaled, or auto on soft springs)."""
-        return self.contact_auto[None] == 0 or self.stiff_ratio[None] <= SCALED_CONTACT_MAX_STIFFNESS
-
-    def _scaled_contact_now_python(self) -> bool:
-        return not self.contact_auto[None] or self.stiff_ratio[None] <= SCALED_CONTACT_MAX_STIFFNESS
-
     @ti.kernel
     def _k_weights(self, dt: float):
         m = self.model
@@ -111,7 +103,10 @@ class LaplacianMatrix:
         for i in range(self.n):
             if self._free(i):
                 ti.atomic_min(m_min, m.mass[i])
-        self.stiff_ratio[None] = dt * dt * k_max / m_min
+        scaled = 1
+        if ti.static(self.contact_auto):
+            scaled = ti.cast(dt * dt * k_max / m_min <= SCALED_CONTACT_MAX_STIFFNESS, ti.i32)
+        self.scaled_now[None] = scaled
         for i in range(self.n):
             d = m.mass[i]
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):

@@ -49,8 +49,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         solver = chosen["global_solver"]
         self.global_solver = solver
         self.scaled_contact = solver == "cholesky" and chosen["contact_solve"] != "pcg"  # compiled in or not
-        self.options_contact_solve = chosen["contact_solve"]
-        self._init_laplacian(model, factorise=solver == "cholesky")
+        self._init_laplacian(model, factorise=solver == "cholesky", contact_auto=chosen["contact_solve"] == "auto")
         self.pcg = PCG(n)
         # The grab's term in the factor (Sherman-Morrison, see _factor_solve): w = A^-1 e_i for
         # the grabbed particle i, solved once per grab and factorisation.
@@ -218,7 +217,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         if ti.static(self.global_solver == "cholesky"):
             if self.sc[S.N_ACTIVE] == 0:
                 self._factor_solve(self.rhs, self.dx)  # nothing held: the factorisation is exact
-            elif ti.static(self.scaled_contact) and self.sc[S.N_PAIRS] == 0 and self._scaled_contact_now():
+            elif ti.static(self.scaled_contact) and self.sc[S.N_PAIRS] == 0 and self.scaled_now[None]:
                 # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry
                 # the stiff pair penalty, and local/global then stalled at the velocity test)
                 self._scaled_direction()
@@ -232,7 +231,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     def _global_step_python(self):
         if self.global_solver == "cholesky" and self.sc[S.N_ACTIVE] == 0:
             self._k_factor_solve(self.rhs, self.dx)
-        elif self.scaled_contact and self.sc[S.N_PAIRS] == 0 and self._scaled_contact_now_python():
+        elif self.scaled_contact and self.sc[S.N_PAIRS] == 0 and self.scaled_now[None]:
             self._k_scaled_direction()
         else:
             self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
