@@ -47,6 +47,13 @@ def cases(quick: bool) -> list[dict]:
     return out
 
 
+def relative_rise(series) -> float:
+    """The largest rise of an energy series above its running minimum, relative to its largest |E|
+    (negative when it only fell; -inf for a single value)."""
+    e = np.asarray(series, dtype=float)
+    return float((e[1:] - np.minimum.accumulate(e)[:-1]).max(initial=-np.inf) / max(np.abs(e).max(), 1e-300))
+
+
 def pair_energy(sim, x: np.ndarray, dt: float) -> tuple[float, float]:
     """(body-body penalty energy [J] at positions ``x``, deepest overlap between bodies [m]):
     the step's pair term over h^2 (``pairs.py``), over every pair of particles of different bodies."""
@@ -93,24 +100,26 @@ def run_case(case: dict, sims: dict) -> dict:
     sim.reset()
 
     def energy():
+        """(total energy with the pair penalty [J], deepest body overlap [m], depth of the deepest
+        particle inside the terrain [m])."""
         x = sim.state.numpy()[0]
         pe, deep = pair_energy(sim, x, dt)
-        return sim.measure()["total_energy"] + pe, deep
+        m = sim.measure()
+        return m["total_energy"] + pe, deep, -m["min_terrain_distance"]
 
     sim.integrator.stats()  # counters from here
-    e0, _ = energy()
+    e0, _, _ = energy()
     series, deepest_overlap, inside, diverged = [e0], 0.0, 0.0, False
     for _ in range(int(round(case["horizon"] / dt))):
         sim.advance(1)
         if sim.diverged:
             diverged = True
             break
-        e, deep = energy()
+        e, deep, depth = energy()
         series.append(e)
         deepest_overlap = max(deepest_overlap, deep)
-        inside = max(inside, -sim.measure()["min_terrain_distance"])
-    e = np.asarray(series)
-    rise = float((e[1:] - np.minimum.accumulate(e)[:-1]).max(initial=-np.inf) / max(np.abs(e).max(), 1e-300))
+        inside = max(inside, depth)
+    rise = relative_rise(series)
     s = sim.integrator.stats()
     return {"solver": case["solver"], "scene": case["scene"], "stiffness_scale": case["stiffness_scale"], "dt": dt,
             "steps": int(s["steps"]), "rise": rise, "diverged": diverged,
