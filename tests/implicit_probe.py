@@ -41,7 +41,7 @@ def _apply(integ: ti.template(), src: ti.template(), dst: ti.template()):
 def begin(integ, state, dt: float):
     """Start a step of ``dt`` [s] at ``state`` without solving it."""
     integ._sync_masses()
-    integ._k_begin(state.x, state.v, dt)
+    integ.launches.begin(state.x, state.v, dt)
     _no_contacts(integ)
 
 
@@ -55,14 +55,14 @@ def objective(integ, state, dt: float) -> float:
 def gradient(integ, state, dt: float) -> np.ndarray:
     """grad g(state.x) [kg m], an [n, 3] array."""
     _displace(integ, state.x)
-    integ._k_gradient_decide(state.x, dt)
+    integ.launches.gradient(state.x, dt)
     return integ.grad.to_numpy()
 
 
 def hessian_product(integ, state, dt: float, w: np.ndarray) -> np.ndarray:
     """H w [kg m], H the (PSD-clamped) Hessian the solver uses at state.x; w an [n, 3] array."""
     _displace(integ, state.x)
-    integ._k_gradient_decide(state.x, dt)
+    integ.launches.gradient(state.x, dt)
     src = ti.Vector.field(3, float, integ.n)
     dst = ti.Vector.field(3, float, integ.n)
     src.from_numpy(np.asarray(w, dtype=integ.model.real))

@@ -73,7 +73,7 @@ def test_sigterm_during_a_render_leaves_the_old_outputs_and_no_junk(tmp_path):
     args = [sys.executable, str(ROOT / "main.py"), "run", *TINY, "--video", str(video), "--frames", str(frames)]
     assert subprocess.run(args + ["--duration", "0.2"], capture_output=True).returncode == 0
     old_video, old_frames = _md5(video), sorted(p.name for p in frames.iterdir())
-    proc = subprocess.Popen(args + ["--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(args + ["--duration", "600"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
     def staged():  # frames of this run already in its hidden staging folder (".f.<pid>.<hex>", the pid
         # the run's or, with --pipeline overlap, its render process's)
@@ -87,7 +87,7 @@ def test_sigterm_during_a_render_leaves_the_old_outputs_and_no_junk(tmp_path):
     in_progress = staged()
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
-    assert in_progress >= 3, err  # the signal hit a render in progress (60 s of video: far from its end)
+    assert in_progress >= 3, err  # the signal hit a render in progress (600 s of video: minutes from its end)
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "SIGTERM" in err and "Traceback" not in err
     assert _md5(video) == old_video

@@ -143,7 +143,7 @@ def _wait_for_staged_frames(tmp_path, proc, count=3, wait=120):
 def test_a_killed_render_process_is_reported_and_leaves_nothing(tmp_path):
     video, frames, states, old = _old_outputs(tmp_path)
     marker = uuid.uuid4().hex
-    proc = subprocess.Popen(_command("--duration", "60", "--pipeline", "overlap", "--video", video,
+    proc = subprocess.Popen(_command("--duration", "600", "--pipeline", "overlap", "--video", video,
                                      "--frames", frames, "--states", states),
                             env=_env(marker), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -170,7 +170,9 @@ def test_sigterm_or_ctrl_c_during_an_overlapped_run_leaves_old_outputs(tmp_path,
     too): the usual exit status and message, old outputs kept, nothing left behind."""
     video, frames, states, old = _old_outputs(tmp_path)
     marker = uuid.uuid4().hex
-    proc = subprocess.Popen(_command("--duration", "60", "--pipeline", "overlap", "--video", video,
+    # 600 s of video, minutes of work: with 60 s (about 4 s of work) a loaded machine once let the
+    # run finish between the staged frames and the signal (exit 0).
+    proc = subprocess.Popen(_command("--duration", "600", "--pipeline", "overlap", "--video", video,
                                      "--frames", frames, "--states", states),
                             env=_env(marker), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)

@@ -10,13 +10,13 @@ A step (docs/implicit.md):
    ``START_HALVINGS`` halvings, else the step starts at x_n).
 3. Iterations: gradient (and the linear operator's data) -> decision (converged? refreeze friction?) -> direction (the subclass:
    Newton + PCG, or the prefactored local/global matrix) -> Armijo backtracking -> accept.
-4. ``_end_step``: v = (x - x_n)/h, restitution within the energy the step lost, ``_finish``
+4. The end (step_end.py): v = (x - x_n)/h, restitution within the energy the step lost, ``_finish``
    (``Terrain.respond``, divergence check), and, as a counted last resort, the energy clamp.
 
 Every decision (convergence tests, Armijo, the forcing term, recording) is a ti.func writing
-``ctl``/``sc``; the serial driver (``_solve``, here, inside the one-launch kernel of many steps)
-and the parallel driver (``parallel.py``, one launch per phase) only sequence them. Phase 4 is
-``step_end.py``; the step's counters ``accounts.py``.
+``ctl``/``sc``. The sequence of phases is written once (walk.py): the serial driver runs it inside
+the one-launch kernel of many steps, the parallel driver from Python scope, one launch per phase.
+Phase 4 is ``step_end.py``; the step's counters ``accounts.py``.
 """
 
 import numpy as np
@@ -30,21 +30,22 @@ from .accounts import StepAccounts
 from .contact import ContactSet
 from .objective import Objective
 from .pairs import PairContacts
-from .parallel import ParallelDriver
 from .restitution import SpreadBounce
 from .scheme import StepScheme
 from .step_end import StepEnd
+from .walk import CG_DIRECTION, STEP, InKernel, Launches
 
 
 @ti.data_oriented
-class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEnd, StepAccounts, ParallelDriver,
+class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEnd, StepAccounts,
                          Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
-    (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``_direction(x)`` (ti.func, serial: dx from rhs at the
-    iterate x, counting CG iterations in ``ctl[CG]``), ``_direction_python(x)`` (the same from Python scope), ``_tol()`` and
-    ``_max_iterations()`` (the residual tolerance [m/s^2] and iteration cap from their options).
+    (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``DIRECTION``
+    (a ``walk.Walk``: dx from rhs at the iterate x; by default the PCG solve), ``_tol()`` and
+    ``_max_iterations()`` (the residual tolerance [m/s^2] and iteration cap from their options). A
+    solver whose direction has phases of its own extends ``IN_KERNEL`` and ``LAUNCHES`` with them.
     """
 
     implicit = True
@@ -57,6 +58,8 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     # (9), the scheme's base displacement and the last step's end state (9), the active-set flags
     # (3 ints); per spring: damper direction and gradient (6 reals).
     FIELDS = ADJACENCY + FieldCounts(80, 3, 6, 0)
+    DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
+    IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
 
     def __init__(self, model, terrain, options=None, contacts=None):
         super().__init__(model, terrain, options, contacts)
@@ -104,6 +107,8 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         self.clamp_on[None] = int(o["energy_clamp"] and not np.any(model.mass_np <= 0))
         self.release_tol[None] = max(self._tol(), 0.1)
         self._masses_changed = True  # (notify_model_changed) total mass and translation test to refresh
+        self.in_kernel = self.IN_KERNEL(self)  # the serial driver's phases
+        self.launches = self.LAUNCHES(self)  # the parallel driver's
 
     # Body-body contact lives inside the step (pairs.py): ``contacts`` given at construction
     # (Simulation gives its own, for a scene with several bodies) builds the pair terms; None builds
@@ -302,50 +307,25 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         self.pcg.rel_tol[None] = tol
 
     @ti.func
-    def _iterating(self):
-        """An iteration takes a step now (not done, no friction refreeze pending)."""
-        return self.ctl[S.DONE] == 0 and self.ctl[S.UPDATE] == 0
-
-    @ti.func
     def _after_direction(self):
         self.ctl[S.OUTER] += 1
         self._line_search_begin(1.0, self.ls_iters[None])
 
-    # -- the serial driver (inside the kernel that runs many steps) ------------------------------
-    # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction, so
-    # one loop runs all three phases and every phase function has a single call site (the serial
-    # kernel inlines each call site; fewer sites compile faster).
-    @ti.func
-    def _solve(self, x: ti.template(), dt):
-        for _k in range(self.max_iters[None] + self.max_updates[None] + 3):
-            searching = self.ctl[S.PHASE] < 2
-            if not searching:
-                self._gradient(x, dt)
-                self._after_gradient(dt)
-                if self.ctl[S.DONE]:
-                    break
-                searching = self._iterating()
-                if searching:
-                    self._direction(x)
-                    self._after_direction()
-                    if ti.static(self._has_pairs()):
-                        self.pairs.follow()  # the pair list along the direction (pair_list.py)
-            if searching:
-                for _h in range(self.ctl[S.LS_LIMIT] + 1):
-                    self._trial(x, dt)
-                    self._line_search_decide()
-                    if self.ctl[S.LS_DONE]:
-                        break
-                self._accept(x)
-                if self.ctl[S.DONE]:
-                    break
-
+    # -- the drivers: one source (walk.py), run inside the serial kernel or from Python scope -----
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
-        self._begin_step(x, v, dt)
-        he = self.h_eff[None]
-        self._solve(x, he)
-        self._end_step(x, v, he, step)
+        STEP.func(self, self.in_kernel, x, v, dt, step)
+
+    def _advance_parallel(self, state, dt: float, n_steps: int) -> int:
+        """``n_steps`` steps of ``dt`` [s], one launch per phase; returns the steps taken (to divergence)."""
+        start = self._step_counter
+        for k in range(n_steps):
+            STEP.py(self, self.launches, state.x, state.v, dt, start + k)
+            if self.diverged:
+                break
+        self._step_counter += n_steps
+        bad = int(self.diverged_step[None])
+        return bad - start + 1 if self.diverged else n_steps
 
     # -- public API -----------------------------------------------------------------------------------
     def advance(self, state, dt: float, n_steps: int) -> int:

@@ -23,6 +23,7 @@ from . import options as opt
 from . import slots as S
 from .driver import ImplicitIntegrator
 from .laplacian import LaplacianMatrix
+from .lbfgs_walk import LBFGS_DIRECTION, LocalGlobalInKernel, LocalGlobalLaunches
 
 
 @register
@@ -35,6 +36,8 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.LOCAL_GLOBAL}
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts(1, 0, 0, 0)  # diagonal of M + L
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
+    DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (lbfgs_walk.py)
+    IN_KERNEL, LAUNCHES = LocalGlobalInKernel, LocalGlobalLaunches
 
     @classmethod
     def buffers(cls, options, arch, counts, real_bytes):
@@ -58,7 +61,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         self.grab_w_for = ti.field(ti.i32, ())  # the particle w is for (grab.NONE: none)
         self.grab_w_for[None] = -1
         self._grab_w_key = None
-        # L-BFGS within a step (fixed at construction: a compile-time constant), see _direction.
+        # L-BFGS within a step (fixed at construction: a compile-time constant), see lbfgs_walk.py.
         self.history = chosen["history"]
         if self.history:
             self.lb_s = ti.Vector.field(3, float, (n, self.history))  # x_{k+1} - x_k [m]
@@ -129,10 +132,6 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
                     coef = c / (1.0 + c * self.grab_w[i]) * x[i]
                     for j in range(self.n):
                         x[j] -= self.grab_w[j] * coef
-
-    @ti.kernel
-    def _k_factor_solve(self, b: ti.template(), x: ti.template()):
-        self._factor_solve(b, x)
 
     # The global step's linear system, filtered by the contact constraints: A dx = rhs with the
     # normal component of dx fixed to 0 for held particles (as in the Newton solve). With nothing
@@ -210,35 +209,6 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             alpha = self.pcg.rz[None] / self.pcg.pq[None]
         for i in range(self.n):
             d[i] *= alpha
-
-    @ti.func
-    def _global_step(self):
-        """dx from rhs by the global step alone (the plain local/global iteration's direction)."""
-        if ti.static(self.global_solver == "cholesky"):
-            if self.sc[S.N_ACTIVE] == 0:
-                self._factor_solve(self.rhs, self.dx)  # nothing held: the factorisation is exact
-            elif ti.static(self.scaled_contact) and self.sc[S.N_PAIRS] == 0 and self.scaled_now[None]:
-                # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry
-                # the stiff pair penalty, and local/global then stalled at the velocity test)
-                self._scaled_direction()
-            else:
-                self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
-                self.ctl[S.CG] += self.pcg.iters[None]
-        else:
-            self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
-            self.ctl[S.CG] += self.pcg.iters[None]
-
-    def _global_step_python(self):
-        if self.global_solver == "cholesky" and self.sc[S.N_ACTIVE] == 0:
-            self._k_factor_solve(self.rhs, self.dx)
-        elif self.scaled_contact and self.sc[S.N_PAIRS] == 0 and self.scaled_now[None]:
-            self._k_scaled_direction()
-        else:
-            self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
-
-    @ti.kernel
-    def _k_scaled_direction(self):
-        self._scaled_direction()
 
     # -- L-BFGS (Liu, Bouaziz & Kavan 2017) ---------------------------------------------------------
     # The plain local/global iteration converges linearly, slowly where springs rotate or compress
@@ -324,56 +294,6 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             c[S.LB_RETRY] = 1
             c[S.LB_COUNT] = 0
             c[S.LB_RESTARTS] += 1
-
-    @ti.func
-    def _direction(self, x: ti.template()):
-        if ti.static(self.history):
-            self._lbfgs_pair(x)
-            for attempt in range(2):
-                if attempt == 0 or self.ctl[S.LB_RETRY]:
-                    count = self.ctl[S.LB_COUNT]  # 0: the global step alone
-                    for j in range(count):
-                        self._lbfgs_first(j)
-                    self._global_step()
-                    for j in range(count):
-                        self._lbfgs_second(j)
-                    if count > 0:
-                        self._lbfgs_finish()
-        else:
-            self._global_step()
-
-    def _direction_python(self, x):
-        if not self.history:
-            self._global_step_python()
-            return
-        self._k_lbfgs_pair(x)
-        for attempt in range(2):
-            if attempt and not self.ctl[S.LB_RETRY]:
-                break
-            count = int(self.ctl[S.LB_COUNT])  # 0: the global step alone
-            for j in range(count):
-                self._k_lbfgs_first(j)
-            self._global_step_python()
-            for j in range(count):
-                self._k_lbfgs_second(j)
-            if count:
-                self._k_lbfgs_finish()
-
-    @ti.kernel
-    def _k_lbfgs_pair(self, x: ti.template()):
-        self._lbfgs_pair(x)
-
-    @ti.kernel
-    def _k_lbfgs_first(self, j: ti.i32):
-        self._lbfgs_first(j)
-
-    @ti.kernel
-    def _k_lbfgs_second(self, j: ti.i32):
-        self._lbfgs_second(j)
-
-    @ti.kernel
-    def _k_lbfgs_finish(self):
-        self._lbfgs_finish()
 
     @ti.func
     def _set_cg_tol(self, tol):

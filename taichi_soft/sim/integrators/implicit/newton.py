@@ -88,14 +88,6 @@ class ImplicitEuler(ImplicitIntegrator):
         for i in range(self.n):
             dst[i] = self.precond[i] @ src[i]
 
-    @ti.func
-    def _direction(self, x: ti.template()):
-        self.pcg.solve(self, self.rhs, self.dx, self.cg_iters[None])
-        self.ctl[S.CG] += self.pcg.iters[None]
-
-    def _direction_python(self, x):
-        self._k_add_cg(self.pcg.solve_parallel(self, self.rhs, self.dx, int(self.cg_iters[None])))
-
     def stats(self) -> dict:
         """Averages per step since the last call (or reset): Newton and CG iterations, line-search
         halvings, friction refreezes, the final residual [m/s^2] (see ``_residual``); counts of steps

@@ -20,7 +20,7 @@ not bounce keep a zero normal change; every other velocity follows through the s
 response reaches about h sqrt(k/m) lattice spacings: in a soft body or at a small step it stays
 at the held particles, as before; in a stiff body at a frame step it moves the body as a whole,
 as the impact wave would. The solve is the solver's PCG on the filtered system, run only on steps
-with a bounce. The tangential friction loss of a bounce (``impact_friction``) stays local.
+with a bounce (walk.py). The tangential friction loss of a bounce (``impact_friction``) stays local.
 
 The driver then scales the whole dv by one factor s in [0, 1], the largest for which the kinetic
 energy it adds fits in the energy the step lost (``contact._bounce_scale``): restitution never
@@ -73,26 +73,8 @@ class SpreadBounce:
         self.pcg.rel_tol[None] = BOUNCE_CG_TOL
 
     @ti.func
-    def _bounce_spread(self):
-        """Serial: solve for the free components (bounce steps only); counted as CG iterations."""
-        if self.sc[S.N_BOUNCE] > 0:
-            self._bounce_rhs()
-            self.pcg.solve(self, self.bounce_rhs, self.bounce_dv, self.cg_iters[None])
-            self.ctl[S.CG] += self.pcg.iters[None]
-
-    def _bounce_spread_python(self):
-        """Parallel: the same solve, one launch per CG iteration."""
-        if float(self.sc[S.N_BOUNCE]) > 0:
-            self._k_bounce_rhs()
-            self._k_add_cg(self.pcg.solve_parallel(self, self.bounce_rhs, self.bounce_dv, int(self.cg_iters[None])))
-
-    @ti.kernel
-    def _k_bounce_rhs(self):
-        self._bounce_rhs()
-
-    @ti.func
     def _bounce_total(self, i):
-        """Particle i's whole restitution velocity change [m/s] (after ``_bounce_spread``)."""
+        """Particle i's whole restitution velocity change [m/s] (after the spread: walk.py)."""
         dv = self.dv[i] + self.bounce_n[i]
         if self.sc[S.N_BOUNCE] > 0:
             dv += self.bounce_dv[i]

@@ -1,7 +1,7 @@
 """Phase 4 of the implicit step, its end: velocities from the solve, restitution as a velocity
 step through the body (restitution.py) and the body-body responses, scaled to the energy the step
 lost, ``Integrator._finish`` (``Terrain.respond``, the divergence check), and, as a counted last
-resort, the energy clamp. Shared by the serial and the parallel driver.
+resort, the energy clamp. Its phases are walked by both drivers (walk.py).
 """
 
 import taichi as ti
@@ -14,20 +14,10 @@ class StepEnd:
     """Mixin of ``ImplicitIntegrator``: the end of a step."""
 
     @ti.func
-    def _end_step(self, x: ti.template(), v: ti.template(), dt, step):
-        """v = (u - u_base)/h_e ((x - x_n)/h for backward Euler); restitution as a velocity step
-        through the body (restitution.py) and body-body responses, scaled to the energy the step lost;
-        ``_finish``; then, if the step still ends with more energy than it began with (beyond
-        round-off), the counted clamp."""
-        self._end_velocities(x, dt)
-        if ti.static(self.terrain.has_contact):
-            self._bounce_spread()
-        self._end_finish(x, v, step)
-
-    @ti.func
     def _end_velocities(self, x: ti.template(), dt):
-        """Solved velocities (dt: this step's h_eff), and the restitution each held particle asks for
-        (its normal part prescribed for the spread, the tangential friction loss kept local)."""
+        """Solved velocities v = (u - u_base)/h_e ((x - x_n)/h for backward Euler; dt: this step's
+        h_eff), and the restitution each held particle asks for (its normal part prescribed for the
+        spread, restitution.py; the tangential friction loss kept local) and the body-body responses."""
         m = self.model
         self.sc[S.K_SOLVE] = 0.0
         self.sc[S.G_END] = 0.0
@@ -51,6 +41,9 @@ class StepEnd:
 
     @ti.func
     def _end_finish(self, x: ti.template(), v: ti.template(), step):
+        """After the restitution spread: every restitution and body-body response scaled to the energy
+        the step lost; ``_finish``; then, if the step still ends with more energy than it began with
+        (beyond round-off), the counted clamp."""
         m = self.model
         scale = ti.cast(1.0, float)
         if ti.static(self.terrain.has_contact or self._has_pairs()):

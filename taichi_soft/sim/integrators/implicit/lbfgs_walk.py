@@ -1,0 +1,105 @@
+"""``fast_mass_spring``'s search direction as walks (walk.py): the global step, and L-BFGS over it.
+
+Its phases beyond the shared ones (the factor's solve, the scaled contact step, the L-BFGS
+two-loop recursion: ti.funcs of local_global.py) extend both executors, one line each.
+"""
+
+import taichi as ti
+
+from . import slots as S
+from .walk import InKernel, Launches, Walk
+
+
+def _global_step(integ, ph, x):
+    """dx from rhs by the global step alone (the plain local/global iteration's direction)."""
+    if ti.static(integ.global_solver == "cholesky"):
+        if integ.sc[S.N_ACTIVE] == 0:
+            ph.factor_solve(integ.rhs, integ.dx)  # nothing held: the factorisation is exact
+        elif ti.static(integ.scaled_contact) and integ.sc[S.N_PAIRS] == 0 and integ.scaled_now[None]:
+            # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry the
+            # stiff pair penalty, and local/global then stalled at the velocity test)
+            ph.scaled_direction()
+        else:
+            ph.cg(integ.rhs, integ.dx)
+    else:
+        ph.cg(integ.rhs, integ.dx)
+
+
+GLOBAL_STEP = Walk(_global_step)
+
+
+def _lbfgs_direction(integ, ph, x):
+    """The global step as the initial inverse Hessian of L-BFGS over this step's pairs (none with
+    ``history = 0``); a direction that is no descent direction is retried with the global step
+    alone (local_global.py, ``_lbfgs_finish``)."""
+    if ti.static(integ.history):
+        ph.lbfgs_pair(x)
+        for attempt in range(2):
+            if attempt == 0 or integ.ctl[S.LB_RETRY]:
+                count = integ.ctl[S.LB_COUNT]  # 0: the global step alone
+                for j in range(count):
+                    ph.lbfgs_first(j)
+                ph.walk(GLOBAL_STEP, x)
+                for j in range(count):
+                    ph.lbfgs_second(j)
+                if count > 0:
+                    ph.lbfgs_finish()
+    else:
+        ph.walk(GLOBAL_STEP, x)
+
+
+LBFGS_DIRECTION = Walk(_lbfgs_direction)
+
+
+@ti.data_oriented
+class LocalGlobalInKernel(InKernel):
+    @ti.func
+    def factor_solve(self, b: ti.template(), out: ti.template()):
+        self.i._factor_solve(b, out)
+
+    @ti.func
+    def scaled_direction(self):
+        self.i._scaled_direction()
+
+    @ti.func
+    def lbfgs_pair(self, x: ti.template()):
+        self.i._lbfgs_pair(x)
+
+    @ti.func
+    def lbfgs_first(self, j):
+        self.i._lbfgs_first(j)
+
+    @ti.func
+    def lbfgs_second(self, j):
+        self.i._lbfgs_second(j)
+
+    @ti.func
+    def lbfgs_finish(self):
+        self.i._lbfgs_finish()
+
+
+@ti.data_oriented
+class LocalGlobalLaunches(Launches):
+    @ti.kernel
+    def factor_solve(self, b: ti.template(), out: ti.template()):
+        self.i._factor_solve(b, out)
+
+    @ti.kernel
+    def scaled_direction(self):
+        self.i._scaled_direction()
+
+    @ti.kernel
+    def lbfgs_pair(self, x: ti.template()):
+        self.i._lbfgs_pair(x)
+
+    @ti.kernel
+    def lbfgs_first(self, j: ti.i32):
+        self.i._lbfgs_first(j)
+
+    @ti.kernel
+    def lbfgs_second(self, j: ti.i32):
+        self.i._lbfgs_second(j)
+
+    @ti.kernel
+    def lbfgs_finish(self):
+        self.i._lbfgs_finish()
