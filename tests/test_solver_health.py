@@ -9,14 +9,37 @@ import taichi as ti
 
 from taichi_soft.sim.integrators.implicit.health import assess
 from taichi_soft.sim.integrators.implicit.newton import ImplicitEuler
+from taichi_soft.sim.integrators.implicit.walk import InKernel, Launches, Walk
+
+
+def _ascent_direction(integ, ph, x):
+    ph.ascent()
+
+
+@ti.data_oriented
+class _AscentInKernel(InKernel):
+    @ti.func
+    def ascent(self):
+        self.i._ascent()
+
+
+@ti.data_oriented
+class _AscentLaunches(Launches):
+    @ti.kernel
+    def ascent(self):
+        self.i._ascent()
 
 
 @ti.data_oriented
 class _Uphill(ImplicitEuler):
-    """implicit_euler with its Newton direction replaced by an ascent direction."""
+    """implicit_euler with its Newton direction replaced by an ascent direction (a direction walk
+    of its own, with its phase added to both executors: walk.py)."""
+
+    DIRECTION = Walk(_ascent_direction)
+    IN_KERNEL, LAUNCHES = _AscentInKernel, _AscentLaunches
 
     @ti.func
-    def _direction(self, x: ti.template()):
+    def _ascent(self):
         for i in range(self.n):
             self.dx[i] = -self.rhs[i] * self.model.inv_mass[i]
 
