@@ -15,6 +15,7 @@ import sys
 from .commands import bench, compare, demo, gallery, listing, run
 from .commands.common import (DEFAULT_OUT, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OK, EXIT_OUTPUT,  # noqa: F401
                               EXIT_REPLAY_DIFFERS, EXIT_TASKS_FAILED, EXIT_UNRELIABLE, Parser)
+from . import errors
 from .errors import OutputError, Terminated, UserError
 
 # The main job (`python main.py`): the assignment's cube dropped on the plane.
@@ -31,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    errors.received.clear()
     previous = _catch_termination()
     try:
         parser = build_parser()
@@ -54,13 +56,16 @@ def main(argv=None) -> int:
 
 
 def _catch_termination() -> dict:
-    """SIGTERM and SIGHUP raise ``Terminated`` in the main thread (as SIGINT raises
-    KeyboardInterrupt), so a killed run drops its temporary files; returns the old handlers."""
+    """SIGINT raises KeyboardInterrupt and SIGTERM and SIGHUP raise ``Terminated`` in the main
+    thread, so a killed run drops its temporary files; each signal is also noted in
+    ``errors.received`` (a swallowed exception is raised again at the next frame or output).
+    Returns the old handlers."""
     def handler(signum, frame):
-        raise Terminated(signum)
+        errors.received.append(signum)
+        raise errors.interrupt_for(signum)
 
     previous = {}
-    for signum in (signal.SIGTERM, signal.SIGHUP):
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         try:
             previous[signum] = signal.signal(signum, handler)
         except ValueError:  # not the main thread (main() called from a worker): leave them

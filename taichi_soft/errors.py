@@ -1,4 +1,5 @@
 """Errors the command line turns into one-line messages and exit codes."""
+import signal
 
 
 class UserError(Exception):
@@ -16,3 +17,22 @@ class Terminated(KeyboardInterrupt):
     def __init__(self, signum: int):
         super().__init__(signum)
         self.signum = signum
+
+
+# The signals the command line's handlers were given during this command (cli.main clears it).
+# Kept beside the exception they raise because a library can swallow that exception: a bare
+# ``except:`` in Python code the main thread happens to be in when the signal arrives (Taichi has
+# several). A Ctrl-C to an overlapped run was once lost that way under load: the run finished and
+# exited 0. ``raise_if_interrupted`` at each frame and before any output is written raises it again.
+received: list[int] = []
+
+
+def interrupt_for(signum: int) -> KeyboardInterrupt:
+    """The exception a handler raises for ``signum``: KeyboardInterrupt for SIGINT, else Terminated."""
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
+def raise_if_interrupted():
+    """Raise the interrupt of a signal received during this command, if any (see ``received``)."""
+    if received:
+        raise interrupt_for(received[-1])

@@ -12,7 +12,7 @@ import secrets
 import shutil
 from pathlib import Path
 
-from .errors import OutputError
+from .errors import OutputError, raise_if_interrupted
 
 
 def reserve_dir(path: Path) -> Path:
@@ -50,6 +50,7 @@ def write_atomic(path: Path, write) -> None:
     try:
         write(str(tmp))
         fsync_file(tmp)
+        raise_if_interrupted()  # a signal whose exception was swallowed: keep the old output
         os.replace(tmp, path)
     except OSError as e:
         tmp.unlink(missing_ok=True)

@@ -68,6 +68,40 @@ def test_full_disk_keeps_old_outputs_and_exits_non_zero(cli, small_disk):
     assert f"summary: {summary}" in r.stdout and f"states: {states}" not in r.stdout
 
 
+@pytest.mark.parametrize("video", [False, True])
+def test_an_interrupt_a_library_swallowed_still_stops_the_run(monkeypatch, capsys, tmp_path, video):
+    """Ctrl-C whose KeyboardInterrupt a library's bare ``except:`` swallowed (Taichi has several;
+    an overlapped run once finished and exited 0 that way): the run stops at the next frame or
+    progress report, exits 130 and keeps the old outputs."""
+    from taichi_soft import cli
+    from taichi_soft.commands import common
+    from taichi_soft.sim.simulation import Simulation
+
+    monkeypatch.setattr(common, "start_taichi", lambda args: None)  # conftest's runtime is running
+    advance, calls = Simulation.advance, []
+
+    def swallowing_advance(self, n):
+        calls.append(n)
+        if len(calls) == 3:
+            try:  # the signal arrives while the main thread is inside a library's bare except
+                signal.getsignal(signal.SIGINT)(signal.SIGINT, None)
+            except:  # noqa: E722
+                pass
+        return advance(self, n)
+
+    monkeypatch.setattr(Simulation, "advance", swallowing_advance)
+    summary, clip = tmp_path / "s.json", tmp_path / "v.mp4"
+    summary.write_text("old summary")
+    clip.write_bytes(b"old video")
+    code = cli.main(["run", "--set", "body.0.n=3", "--duration", "20", "--summary", str(summary),
+                     "--pipeline", "serial", "--resolution", "64x48"] + (["--video", str(clip)] if video else []))
+    assert code == 130, capsys.readouterr().err
+    assert "interrupted (SIGINT)" in capsys.readouterr().err
+    assert summary.read_text() == "old summary" and clip.read_bytes() == b"old video"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.json", "v.mp4"]
+    assert len(calls) < 10  # stopped at the next frame, not at the end of 20 s
+
+
 def test_sigterm_during_a_render_leaves_the_old_outputs_and_no_junk(tmp_path):
     video, frames = tmp_path / "v.mp4", tmp_path / "f"
     args = [sys.executable, str(ROOT / "main.py"), "run", *TINY, "--video", str(video), "--frames", str(frames)]

@@ -5,7 +5,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..errors import OutputError
+from ..errors import OutputError, raise_if_interrupted
 from ..sim.memory import check_fits
 from ..outfiles import finite_or_none
 from . import common
@@ -82,8 +82,18 @@ def cmd_run(args) -> int:
     else:
         bar = CountBar(step_count(duration, sim.dt), label, unit="step")
         step_progress = lambda done, total, s: bar.update(done, f"t={s.time:6.3f}s")  # noqa: E731
+    def on_frame(s):
+        raise_if_interrupted()  # a Ctrl-C that a library swallowed (errors.received) stops the run here
+        recorder(s)
+
+    def on_progress(done, total, s):
+        raise_if_interrupted()
+        step_progress(done, total, s)
+
     try:
-        result = sim.run(duration, fps, on_frame=recorder, record=states_path is not None, progress=step_progress)
+        result = sim.run(duration, fps, on_frame=None if recorder is None else on_frame,
+                         record=states_path is not None, progress=None if step_progress is None else on_progress)
+        raise_if_interrupted()  # before any output is committed
     except OutputError as e:  # the video or frames failed part-way (full disk, encoder error): stop there
         recorder.abort()
         others = [f"--{name} {path}" for name, path in (("summary", summary_path), ("states", states_path)) if path]
