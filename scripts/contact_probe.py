@@ -16,7 +16,7 @@ import numpy as np
 sys.path.insert(0, ".")
 import taichi as ti  # noqa: E402
 
-from taichi_soft.bench.plausibility import _slide  # noqa: E402
+from taichi_soft.bench.plausibility import slide_distance  # noqa: E402
 from taichi_soft.bench.precision import ENSEMBLE  # noqa: E402
 from taichi_soft.sim.integrators import names  # noqa: E402
 from taichi_soft.sim.integrators.implicit import slots as S  # noqa: E402
@@ -93,11 +93,13 @@ def one(name, scene, sets, t_end, solver, opts, scale, dt):
            "res_land13": float(np.mean([s["res"] for s in land])) if land else float("nan"),
            "ms_contact": 1e3 * float(np.median([s["wall"] for s in c[1:]])) if len(c) > 1 else float("nan"),
            "ms_land13": 1e3 * float(np.median([s["wall"] for s in land])) if land else float("nan"),
+           "wall_total": float(sum(s["wall"] for s in steps[1:])),  # step 0 compiles
+           "res_mean": float(np.mean([s["res"] for s in steps if math.isfinite(s["res"])] or [float("nan")])),
            "unconverged": sum(s["unconv"] for s in steps), "clamped": sum(s["clamp"] for s in steps),
            "failed": sum(s["failed"] for s in steps), "com": com.tolist()}
     if name == "push":
         times = dt * np.arange(len(com))
-        out["slide"] = _slide({"diverged": sim.diverged, "com": com, "times": times})
+        out["slide"] = slide_distance({"diverged": sim.diverged, "com": com, "times": times})
         g, mu = 9.8, float(sim.terrain.friction[None])
         out["slide_expected"] = 9.0 / (2 * mu * g)
     if name == "rest":

@@ -87,7 +87,7 @@ def task(name: str, scales, refs: dict, quick: bool) -> list[dict]:
                        "deepest_inside_m": max(d["inside"], s["inside"]),
                        "apex": P.first_apex(d["times"], h), "ref_apex": ref["apex"],
                        "rest_height": float(h[-1]), "ref_rest_height": ref["rest_height"],
-                       "slide_m": _slide(s), "slide_expected_m": PUSH_SPEED**2 / (2.0 * mu * g),
+                       "slide_m": slide_distance(s), "slide_expected_m": PUSH_SPEED**2 / (2.0 * mu * g),
                        "energy_clamped_steps": int(d["stats"]["energy_clamped_steps"]) + int(s["stats"]["energy_clamped_steps"]),
                        "failed_solve_steps": int(d["stats"]["failed_solve_steps"]) + int(s["stats"]["failed_solve_steps"]),
                        "unconverged_steps": int(d["stats"]["unconverged_steps"]) + int(s["stats"]["unconverged_steps"]),
@@ -98,7 +98,7 @@ def task(name: str, scales, refs: dict, quick: bool) -> list[dict]:
     return rows
 
 
-def _slide(run: dict) -> float:
+def slide_distance(run: dict) -> float:
     """Distance [m] along x the push's centre of mass went until it came to rest (nan if diverged)."""
     if run["diverged"]:
         return math.nan

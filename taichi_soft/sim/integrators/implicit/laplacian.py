@@ -28,6 +28,16 @@ def cholesky_pays(arch: str, counts) -> bool:
     return arch == "cpu" and counts.envelope <= CHOLESKY_AUTO_MAX
 
 
+# global_solver = auto on a CPU (resolved "by_stiffness") factorises A but takes the Jacobi-PCG
+# global step, free flight and contact alike, above this h^2 k_max / m_min. Measured (five drops of
+# the default cube at 1/30 s, scripts/contact_probe.py, 2026-12-03, docs/implicit.md): the Jacobi
+# PCG global step took 1.31x the factor's time at x1 (h^2 k / m = 2.2), 0.36x / 0.39x / 0.77x at
+# x10 / x100 / x1000, at equal or smaller residuals: under contact on stiff springs the factor is
+# only a PCG preconditioner (contact_solve), one serial triangular solve pair per CG iteration.
+FACTOR_MAX_STIFFNESS = 10.0
+FACTORISED = ("cholesky", "by_stiffness")  # resolved global_solver values that factorise A
+
+
 # contact_solve = auto picks the scaled contact step up to this h^2 k_max / m_min, PCG above. A 3^3
 # cube (1 kg particles) pushed across the plane at 3 m/s should slide v^2 / (2 mu g) = 1.53 m; with
 # the scaled step it slid 1.48 / 0.34 / 0.22 m at h^2 k / m = 6.7 / 22 / 17 (x3 and x10 at 1/30 s,
@@ -42,10 +52,12 @@ class LaplacianMatrix:
 
     @classmethod
     def resolve(cls, options, arch, fast_math, counts):
-        """``global_solver = auto``: cholesky where it pays (``cholesky_pays``), else pcg."""
+        """``global_solver = auto``: where the factor pays (``cholesky_pays``) "by_stiffness" (the
+        factor while h^2 k_max / m_min <= FACTOR_MAX_STIFFNESS at the step, Jacobi PCG above,
+        decided whenever A is rebuilt), else pcg."""
         out = super().resolve(options, arch, fast_math, counts)
         if out["global_solver"] == "auto":
-            out["global_solver"] = "cholesky" if cholesky_pays(arch, counts) else "pcg"
+            out["global_solver"] = "by_stiffness" if cholesky_pays(arch, counts) else "pcg"
         return out
 
     @classmethod
@@ -56,15 +68,16 @@ class LaplacianMatrix:
         model's fields and before the integrator's own and the state's, so only what exceeds those
         (counted whatever the choice, as ``auto`` sizes it to choose: 0 for every lattice)."""
         out = super().buffers(options, arch, counts, real_bytes)
-        if options["global_solver"] == "cholesky":
+        if options["global_solver"] in FACTORISED:
             out = out + Buffers(CHOLESKY_INDEX, reals=counts.envelope)
         later = (cls.FIELDS + STATE).bytes(counts.particles, counts.springs, real_bytes)
         return out + Buffers(transient=max(0, 16 * counts.springs + 16 * counts.particles - later))
 
-    def _init_laplacian(self, model, factorise: bool, contact_auto: bool):
+    def _init_laplacian(self, model, global_solver: str, contact_auto: bool):
         self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
         self.diag = ti.field(float, model.n_particles)  # diagonal of M + L [kg] (0 for pinned particles)
-        self.chol = SkylineCholesky(model.n_particles, model.pairs_np) if factorise else None
+        self.factorised = global_solver in FACTORISED  # a compile-time constant
+        self.chol = SkylineCholesky(model.n_particles, model.pairs_np) if self.factorised else None
         self._matrix_dt = None  # the dt [s] A was built for; None: rebuild (the model changed)
         self.factorizations = 0
         # 1: the scaled contact step this step (contact_solve = scaled; with auto, while the springs
@@ -72,6 +85,10 @@ class LaplacianMatrix:
         # dt or the model changed; contact_auto is an option, so a compile-time constant.
         self.contact_auto = contact_auto
         self.scaled_now = ti.field(ti.i32, ())
+        # 1: the global step is Jacobi PCG this step (pcg; by_stiffness while the springs are stiff,
+        # h^2 k_max / m_min > FACTOR_MAX_STIFFNESS). Set with A.
+        self.by_stiffness = global_solver == "by_stiffness"  # a compile-time constant
+        self.jacobi_now = ti.field(ti.i32, ())
 
     def notify_model_changed(self, flags: int):
         super().notify_model_changed(flags)
@@ -103,10 +120,15 @@ class LaplacianMatrix:
         for i in range(self.n):
             if self._free(i):
                 ti.atomic_min(m_min, m.mass[i])
+        beta = dt * dt * k_max / m_min
         scaled = 1
         if ti.static(self.contact_auto):
-            scaled = ti.cast(dt * dt * k_max / m_min <= SCALED_CONTACT_MAX_STIFFNESS, ti.i32)
+            scaled = ti.cast(beta <= SCALED_CONTACT_MAX_STIFFNESS, ti.i32)
         self.scaled_now[None] = scaled
+        jacobi = ti.cast(beta > FACTOR_MAX_STIFFNESS, ti.i32)
+        if ti.static(not self.by_stiffness):
+            jacobi = 0 if ti.static(self.factorised) else 1
+        self.jacobi_now[None] = jacobi
         for i in range(self.n):
             d = m.mass[i]
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):

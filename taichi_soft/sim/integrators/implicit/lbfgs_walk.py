@@ -12,8 +12,10 @@ from .walk import InKernel, Launches, Walk
 
 def _global_step(integ, ph, x):
     """dx from rhs by the global step alone (the plain local/global iteration's direction)."""
-    if ti.static(integ.global_solver == "cholesky"):
-        if integ.sc[S.N_ACTIVE] == 0:
+    if ti.static(integ.factorised):
+        if integ.jacobi_now[None]:
+            ph.cg(integ.rhs, integ.dx)  # stiff springs (by_stiffness): Jacobi PCG, as pcg
+        elif integ.sc[S.N_ACTIVE] == 0:
             ph.factor_solve(integ.rhs, integ.dx)  # nothing held: the factorisation is exact
         elif ti.static(integ.scaled_contact) and integ.sc[S.N_PAIRS] == 0 and integ.scaled_now[None]:
             # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry the

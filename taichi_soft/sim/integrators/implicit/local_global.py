@@ -51,12 +51,12 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         chosen = self.resolve(self.parse_options(options or {}), *running_target(), model_counts(model))
         solver = chosen["global_solver"]
         self.global_solver = solver
-        self.scaled_contact = solver == "cholesky" and chosen["contact_solve"] != "pcg"  # compiled in or not
-        self._init_laplacian(model, factorise=solver == "cholesky", contact_auto=chosen["contact_solve"] == "auto")
+        self._init_laplacian(model, solver, contact_auto=chosen["contact_solve"] == "auto")
+        self.scaled_contact = self.factorised and chosen["contact_solve"] != "pcg"  # compiled in or not
         self.pcg = PCG(n)
         # The grab's term in the factor (Sherman-Morrison, see _factor_solve): w = A^-1 e_i for
         # the grabbed particle i, solved once per grab and factorisation.
-        self.grab_in_factor = solver == "cholesky" and model.has_grab()  # a compile-time constant
+        self.grab_in_factor = self.factorised and model.has_grab()  # a compile-time constant
         self.grab_w = ti.field(float, n) if self.grab_in_factor else None
         self.grab_w_for = ti.field(ti.i32, ())  # the particle w is for (grab.NONE: none)
         self.grab_w_for[None] = -1
@@ -160,13 +160,17 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):
-        if ti.static(self.global_solver == "cholesky"):
-            self._factor_solve(src, dst)
-            for i in range(self.n):
-                dst[i] = self._filter(i, dst[i])
-        else:
-            for i in range(self.n):
+        if ti.static(self.factorised):
+            if not self.jacobi_now[None]:
+                self._factor_solve(src, dst)
+        for i in range(self.n):  # one loop for both (a loop under a run-time branch runs serially)
+            jacobi = 1
+            if ti.static(self.factorised):
+                jacobi = self.jacobi_now[None]
+            if jacobi:
                 dst[i] = self._filter(i, src[i] / ti.max(self.diag[i], 1e-300))
+            else:
+                dst[i] = self._filter(i, dst[i])
 
     @ti.func
     def _scaled_direction(self):
@@ -313,6 +317,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             "line_search_halvings_per_step": a[S.A_LS] / steps,
             "final_residual_m_s2": a[S.A_RES] / steps,
             "global_solver": self.global_solver,
+            "jacobi_pcg_now": bool(self.jacobi_now[None]),
             "factorizations": self.factorizations,
             "lbfgs_restarts_per_step": a[S.A_LB_RESTARTS] / steps,
             **self._contact_stats(a, steps),

@@ -48,11 +48,14 @@ LOCAL_GLOBAL = {
     "iterations": Option(20, int_at_least(1), "an integer >= 1", "most local/global iterations per step"),
     "tol": Option(0.1, number_in(0.0, 1e3), "a number in [0, 1000]",
                   "residual [m/s^2] at which iterations stop early (0: only the other tests stop them)"),
-    "global_solver": Option("auto", lambda v: v in ("auto", "cholesky", "pcg"), "auto, cholesky or pcg",
+    "global_solver": Option("auto", lambda v: v in ("auto", "cholesky", "pcg", "by_stiffness"),
+                            "auto, cholesky, pcg or by_stiffness",
                             "cholesky: prefactored skyline Cholesky (under contact see contact_solve); "
-                            "pcg: matrix-free Jacobi PCG; auto: cholesky on a CPU while the factor is small"),
+                            "pcg: matrix-free Jacobi PCG; by_stiffness: cholesky while h^2 k_max / m_min <= 10 "
+                            "at the step, pcg on stiffer springs; auto: by_stiffness on a CPU while the factor "
+                            "is small, else pcg"),
     "contact_solve": Option("auto", lambda v: v in ("auto", "scaled", "pcg"), "auto, scaled or pcg",
-                            "global step with particles held on the terrain (global_solver = cholesky): "
+                            "global step with particles held on the terrain while the factor is used: "
                             "scaled: one solve with the prefactored matrix and one block-Jacobi smoothing "
                             "step (friction), filtered, its length from the step's quadratic model; "
                             "pcg: the filtered system solved by PCG to cg_tol; auto: scaled while "
