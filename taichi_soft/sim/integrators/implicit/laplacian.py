@@ -28,12 +28,13 @@ def cholesky_pays(arch: str, counts) -> bool:
     return arch == "cpu" and counts.envelope <= CHOLESKY_AUTO_MAX
 
 
-# global_solver = auto on a CPU (resolved "by_stiffness") factorises A but takes the Jacobi-PCG
-# global step, free flight and contact alike, above this h^2 k_max / m_min. Measured (five drops of
-# the default cube at 1/30 s, scripts/contact_probe.py, 2026-12-03, docs/implicit.md): the Jacobi
-# PCG global step took 1.31x the factor's time at x1 (h^2 k / m = 2.2), 0.36x / 0.39x / 0.77x at
-# x10 / x100 / x1000, at equal or smaller residuals: under contact on stiff springs the factor is
-# only a PCG preconditioner (contact_solve), one serial triangular solve pair per CG iteration.
+# global_solver = by_stiffness factorises A but takes the Jacobi-PCG global step, free flight and
+# contact alike, above this h^2 k_max / m_min. On the five drops of the default cube at 1/30 s the
+# Jacobi PCG step took 1.31x the factor's time at x1 (h^2 k / m = 2.2), 0.36x / 0.39x / 0.77x at
+# x10 / x100 / x1000 (under contact on stiff springs the factor is only a PCG preconditioner, one
+# serial pair of triangular solves per CG iteration). Not what auto picks: a cube pushed across the
+# plane at x1000 then failed its line search on 46 of 120 steps at 1/30 s and slid 0.76 m instead
+# of Coulomb's 1.53 m (docs/implicit.md, "Measured results").
 FACTOR_MAX_STIFFNESS = 10.0
 FACTORISED = ("cholesky", "by_stiffness")  # resolved global_solver values that factorise A
 
@@ -52,12 +53,10 @@ class LaplacianMatrix:
 
     @classmethod
     def resolve(cls, options, arch, fast_math, counts):
-        """``global_solver = auto``: where the factor pays (``cholesky_pays``) "by_stiffness" (the
-        factor while h^2 k_max / m_min <= FACTOR_MAX_STIFFNESS at the step, Jacobi PCG above,
-        decided whenever A is rebuilt), else pcg."""
+        """``global_solver = auto``: cholesky where it pays (``cholesky_pays``), else pcg."""
         out = super().resolve(options, arch, fast_math, counts)
         if out["global_solver"] == "auto":
-            out["global_solver"] = "by_stiffness" if cholesky_pays(arch, counts) else "pcg"
+            out["global_solver"] = "cholesky" if cholesky_pays(arch, counts) else "pcg"
         return out
 
     @classmethod

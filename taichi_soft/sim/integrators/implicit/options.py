@@ -52,8 +52,8 @@ LOCAL_GLOBAL = {
                             "auto, cholesky, pcg or by_stiffness",
                             "cholesky: prefactored skyline Cholesky (under contact see contact_solve); "
                             "pcg: matrix-free Jacobi PCG; by_stiffness: cholesky while h^2 k_max / m_min <= 10 "
-                            "at the step, pcg on stiffer springs; auto: by_stiffness on a CPU while the factor "
-                            "is small, else pcg"),
+                            "at the step, pcg on stiffer springs (faster impacts, worse sliding); auto: cholesky "
+                            "on a CPU while the factor is small, else pcg"),
     "contact_solve": Option("auto", lambda v: v in ("auto", "scaled", "pcg"), "auto, scaled or pcg",
                             "global step with particles held on the terrain while the factor is used: "
                             "scaled: one solve with the prefactored matrix and one block-Jacobi smoothing "
