@@ -19,6 +19,15 @@ def build(n=4, size=1.5, gravity=(0.0, 0.0, 0.0), terrain="none", geometry=None,
     return model, make_terrain(terrain, model.n_particles, geometry or {}, **c)
 
 
+def moving_cube(n=4, damping=60.0, k=2000.0):
+    """(model, terrain, x0): an n^3 cube, edge 1.5 m, 1 kg particles, springs k [N/m] with dampers
+    [N s/m], spinning and translating under gravity with no terrain, x0 stretched by up to 30 %:
+    smooth motion for the implicit solvers' convergence and scheme tests."""
+    model, terrain = build(n=n, size=1.5, gravity=(0.0, -9.8, 0.0), stretch=(k, damping), shear=(k, damping),
+                           bend=(k, damping), angular_velocity=(0.0, 3.0, 1.0), velocity=(1.0, 0.0, 0.0))
+    return model, terrain, stretched(model, (1.3, 0.8, 1.1))
+
+
 def stretched(model, factor=(1.1, 0.95, 1.0)):
     """Initial positions [m] stretched about the centre of mass by per-axis ``factor``."""
     x0 = model.x0_np

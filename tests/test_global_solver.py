@@ -5,17 +5,10 @@ Taichi field trees, and test_implicit.py's runtime holds as many as Taichi 1.7 a
 import numpy as np
 import pytest
 
-from physics_helpers import build, simulate, stretched
+from physics_helpers import moving_cube, simulate
 from taichi_soft.sim.integrators import make_integrator
 
 FRAME = 1.0 / 60.0
-
-
-def _moving_cube():
-    """A spinning, stretched 3^3 cube of 1 kg particles and 2000 N/m springs, no terrain."""
-    model, terrain = build(n=3, size=1.5, gravity=(0.0, -9.8, 0.0), stretch=(2000.0, 60.0), shear=(2000.0, 60.0),
-                           bend=(2000.0, 60.0), angular_velocity=(0.0, 3.0, 1.0), velocity=(1.0, 0.0, 0.0))
-    return model, terrain, stretched(model, (1.3, 0.8, 1.1))
 
 
 @pytest.mark.parametrize("mode", ["serial", "parallel"])
@@ -23,7 +16,7 @@ def test_by_stiffness_is_the_factor_on_soft_springs_and_jacobi_pcg_on_stiff(mode
     """global_solver = by_stiffness: at h^2 k_max / m_min <= 10 the step is
     cholesky's, above it pcg's, bit for bit, switched at run time when dt changes (2000 N/m, 1 kg:
     2000 h^2 is 0.56 at 1/60 s and 20 at 0.1 s)."""
-    model, terrain, x0 = _moving_cube()
+    model, terrain, x0 = moving_cube(n=3)
     opts = {"mode": mode}
     integ = make_integrator("fast_mass_spring", model, terrain, {**opts, "global_solver": "by_stiffness"})
     for dt, same_as in ((FRAME, "cholesky"), (0.1, "pcg"), (FRAME, "cholesky")):

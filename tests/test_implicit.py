@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import implicit_probe as probe
-from physics_helpers import build, default_cube_sim, simulate, stretched, total_energy
+from physics_helpers import build, default_cube_sim, moving_cube, simulate, stretched, total_energy
 from taichi_soft.sim.integrators import REGISTRY, make_integrator
 
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
@@ -90,16 +90,10 @@ def test_projected_hessian_is_positive_definite_under_compression():
 
 
 # -- solver convergence ----------------------------------------------------------------------
-def _moving_cube(n=4, damping=60.0, k=2000.0):
-    model, terrain = build(n=n, size=1.5, gravity=(0.0, -9.8, 0.0), stretch=(k, damping), shear=(k, damping),
-                           bend=(k, damping), angular_velocity=(0.0, 3.0, 1.0), velocity=(1.0, 0.0, 0.0))
-    return model, terrain, stretched(model, (1.3, 0.8, 1.1))
-
-
 def test_newton_converges_quadratically():
     """A spinning cube stretched by 30 %: its springs stay stretched through the step, so the
     PSD clamp is inactive near the solution and Newton's exact Hessian gives quadratic convergence."""
-    model, terrain, _ = _moving_cube()
+    model, terrain, _ = moving_cube()
     integ = make_integrator("implicit_euler", model, terrain, {**TIGHT["implicit_euler"], "newton_tol": 0.0,
                                                                  "newton_iters": 8})
     state = model.state()
@@ -119,7 +113,7 @@ def test_newton_converges_quadratically():
 
 
 def test_fast_mass_spring_and_newton_reach_the_same_step():
-    model, terrain, x0 = _moving_cube()
+    model, terrain, x0 = moving_cube()
     out = {}
     for name in IMPLICIT:
         x, v, done = simulate(model, terrain, name, FRAME, 3, x0=x0, options=TIGHT[name])
@@ -135,7 +129,7 @@ def test_lbfgs_reaches_the_same_step_in_far_fewer_iterations(mode):
     Hessian) minimises the same objective as the plain local/global iteration: a spinning cube
     stretched by 20-30 % at stiffness x10 and dt = 1/30 s, converged to 1e-6 m/s^2, ends at the
     same point; the plain iteration converges linearly and needs about 8x the iterations."""
-    model, terrain, _ = _moving_cube(k=20000.0)
+    model, terrain, _ = moving_cube(k=20000.0)
     out = {}
     for history in (0, 5):
         integ = make_integrator("fast_mass_spring", model, terrain, {"iterations": 3000, "tol": 1e-6, "velocity_tol": 0.0,
@@ -152,7 +146,7 @@ def test_lbfgs_reaches_the_same_step_in_far_fewer_iterations(mode):
 
 
 def test_fast_mass_spring_pcg_fallback_matches_cholesky():
-    model, terrain, x0 = _moving_cube()
+    model, terrain, x0 = moving_cube()
     xs = [simulate(model, terrain, "fast_mass_spring", FRAME, 3, x0=x0,
                    options={"iterations": 5, "global_solver": g, "cg_tol": 1e-12, "velocity_tol": 0.0})[0]
           for g in ("cholesky", "pcg")]
@@ -162,7 +156,7 @@ def test_fast_mass_spring_pcg_fallback_matches_cholesky():
 @pytest.mark.parametrize("name", IMPLICIT)
 def test_first_order_convergence_to_the_explicit_solution(name):
     """Errors against a tiny-step RK4 reference halve with dt (first order, backward Euler)."""
-    model, terrain, x0 = _moving_cube(n=3)
+    model, terrain, x0 = moving_cube(n=3)
     t_end = 0.1
     x_ref, _, _ = simulate(model, terrain, "rk4", 1e-4, 1000, x0=x0)
     integ = make_integrator(name, model, terrain, TIGHT[name])
@@ -179,7 +173,7 @@ def test_first_order_convergence_to_the_explicit_solution(name):
 
 
 def test_energy_does_not_grow_without_dampers():
-    model, terrain, x0 = _moving_cube(damping=0.0)
+    model, terrain, x0 = moving_cube(damping=0.0)
     integ = make_integrator("implicit_euler", model, terrain, TIGHT["implicit_euler"])
     state = model.state()
     state.set(x0, model.v0_np)
@@ -204,7 +198,7 @@ def test_options_are_validated():
 
 
 def test_refactorises_only_when_dt_or_stiffness_change():
-    model, terrain, x0 = _moving_cube(n=3)
+    model, terrain, x0 = moving_cube(n=3)
     integ = make_integrator("fast_mass_spring", model, terrain)
     state = model.state()
     state.set(x0, model.v0_np)
@@ -231,7 +225,7 @@ def test_stats_report_per_step_work():
     and the stats say so; Newton's final residual is below its tolerance. Fast mass-spring may stop
     on its velocity test first (an update moving no particle faster than velocity_tol), so its
     residual is bounded by a tenth of gravity's acceleration instead (unbalanced force per mass)."""
-    model, terrain, x0 = _moving_cube(n=3)
+    model, terrain, x0 = moving_cube(n=3)
     for name, iterations in (("implicit_euler", "newton_iterations_per_step"),
                              ("fast_mass_spring", "local_global_iterations_per_step")):
         integ = make_integrator(name, model, terrain)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from physics_helpers import build, simulate, stretched, total_energy
+from physics_helpers import build, moving_cube, simulate, total_energy
 from taichi_soft.sim.integrators import make_integrator
 
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
@@ -19,20 +19,12 @@ TIGHT = {
 }
 
 
-def _moving_cube(n=3, damping=60.0):
-    """A spinning, translating 3^3 cube stretched by up to 30 % under gravity, no terrain: smooth."""
-    model, terrain = build(n=n, size=1.5, gravity=(0.0, -9.8, 0.0), stretch=(2000.0, damping),
-                           shear=(2000.0, damping), bend=(2000.0, damping), angular_velocity=(0.0, 3.0, 1.0),
-                           velocity=(1.0, 0.0, 0.0))
-    return model, terrain, stretched(model, (1.3, 0.8, 1.1))
-
-
 @pytest.mark.parametrize("name", IMPLICIT)
 def test_bdf2_is_second_order_and_backward_euler_first(name):
     """Errors at t = 0.2 s against a tiny-step RK4 reference, converged solves, steps 1/100 to
     1/800 s: BDF2's fitted order is at least 1.8 (its first step, backward Euler, costs no order:
     its local error is O(h^2)), backward Euler's about 1; BDF2 is the more accurate at every step."""
-    model, terrain, x0 = _moving_cube()
+    model, terrain, x0 = moving_cube(n=3)
     t_end = 0.2
     x_ref, _, _ = simulate(model, terrain, "rk4", 1e-4, 2000, x0=x0)
     steps_list = (20, 40, 80, 160)
@@ -100,7 +92,7 @@ def test_bdf2_keeps_the_energy_bound_without_dampers(name):
     monotone); BDF2's is not (its monotone quantity is a two-step G-norm), so the end-of-step check
     takes the excess on some steps, and every such step is counted in stats(). BDF2 dissipates
     the oscillation less: it ends with more energy."""
-    model, terrain, x0 = _moving_cube(n=3, damping=0.0)
+    model, terrain, x0 = moving_cube(n=3, damping=0.0)
     final, clamped = {}, {}
     for scheme in ("bdf2", "backward_euler"):
         integ = make_integrator(name, model, terrain, {**TIGHT[name], "scheme": scheme})

@@ -174,11 +174,12 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):
+        jacobi = self._jacobi()
         if ti.static(self.factorised):
-            if not self._jacobi():
+            if not jacobi:
                 self._factor_solve(src, dst)
         for i in range(self.n):  # one loop for both (a loop under a run-time branch runs serially)
-            if self._jacobi():
+            if jacobi:
                 dst[i] = self._filter(i, src[i] / ti.max(self.diag[i], 1e-300))
             else:
                 dst[i] = self._filter(i, dst[i])
