@@ -113,6 +113,27 @@ def test_list(cli):
         assert word in r.stdout
 
 
+def test_list_options_shows_every_option_and_each_default_passes_its_own_check(cli):
+    """``list --options``: every integrator's options with default, what is allowed and meaning, as its
+    ``Config`` declares them; every default is a value its own check accepts, and a value given as
+    TOML writes it (an integer for a real) comes back typed."""
+    from taichi_soft.sim.integrators import REGISTRY
+
+    r = cli("list", "--options")
+    assert r.returncode == 0, r.stderr
+    for name, cls in REGISTRY.items():
+        section = r.stdout.split(f"  {name} ", 1)[1]
+        for option, o in cls.Config.options().items():
+            assert f"      {option} = " in section and o.doc in section, (name, option)
+            assert o.check(o.default), (name, option)
+            assert getattr(cls.Config.parse({option: o.default}, name), option) == o.default
+    fms = REGISTRY["fast_mass_spring"].Config
+    assert fms.parse({"contact_stiffness": 3000}, "fast_mass_spring").contact_stiffness == 3000.0
+    assert isinstance(fms.parse({"contact_stiffness": 3000}, "fast_mass_spring").contact_stiffness, float)
+    with pytest.raises(UserError, match="solver.forces: not an option of implicit_euler"):
+        REGISTRY["implicit_euler"].Config.parse({"forces": "gather"}, "implicit_euler")  # no force passes
+
+
 # -- scene handling in-process ------------------------------------------------------------------
 def test_set_parses_toml_values_or_strings():
     assert parse_value("0.002") == 0.002

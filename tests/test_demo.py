@@ -369,7 +369,7 @@ def test_fast_mass_spring_carries_a_stiff_grab_in_its_factor(fresh):
             fresh.step(1)
             st = integ.stats()
             if name == "fast_mass_spring":  # (without the grab in the factor: 80-1.8e5 m/s^2)
-                assert st["final_residual_m_s2"] < 10 * integ.options["tol"]
+                assert st["final_residual_m_s2"] < 10 * integ.options.tol
         ends[name] = positions(fresh)
         fresh.release()
         fresh.set_grab_stiffness(1000.0)

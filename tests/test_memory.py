@@ -47,7 +47,7 @@ def test_field_table_matches_allocated_fields():
     whose size grows with the body, for every integrator (n = 8: a missing per-particle float would
     be 4 KB, more than all fixed-size fields together)."""
     from taichi_soft.sim.forces import Diagnostics
-    from taichi_soft.sim.integrators import make_integrator, names
+    from taichi_soft.sim.integrators import REGISTRY, make_integrator, names
     from taichi_soft.sim.lattice import envelope_size
     from taichi_soft.sim.linalg import SkylineCholesky
 
@@ -61,10 +61,11 @@ def test_field_table_matches_allocated_fields():
         n_p, n_s = model.n_particles, model.n_springs
         assert envelope_size(8) == SkylineCholesky.envelope_size(n_p, model.pairs_np)
         common = [model, model.state(), terrain, Diagnostics(model, terrain)]
-        fields = _fields(common + [make_integrator(name, model, terrain, {"mode": mode, "forces": forces})])
+        given = {"mode": mode} if REGISTRY[name].implicit else {"mode": mode, "forces": forces}
+        fields = _fields(common + [make_integrator(name, model, terrain, given)])
         scaling = [f for f in fields if f.shape and f.shape[0] >= min(n_p, n_s)]
         fixed = sum(_field_bytes(f) for f in fields if f not in scaling)
-        sets = ["body.0.n=8", f"solver.mode={mode}", f"solver.forces={forces}"]
+        sets = ["body.0.n=8"] + [f"solver.{k}={v}" for k, v in given.items()]
         est = memory.estimate(load_scene("plane", sets).data, name, "f64", "cpu",
                               fast_math=runtime.current()["fast_math"])
         assert fixed < 2048, name

@@ -66,7 +66,7 @@ def test_failed_line_searches_are_said_and_the_run_exits_non_zero(monkeypatch, c
     s = json.loads(summary.read_text())
     assert s["meaningless"] is True and len(s["solver_warnings"]) == 1
     assert s["integrator_stats"]["failed_solve_steps"] == 5
-    assert s["integrator_stats"]["failed_solve_max_residual_m_s2"] > ImplicitEuler.OPTIONS["newton_tol"].default
+    assert s["integrator_stats"]["failed_solve_max_residual_m_s2"] > ImplicitEuler.Config.newton_tol
     lines, meaningless = assess(s["integrator_stats"])
     assert meaningless and lines == s["solver_warnings"]
 

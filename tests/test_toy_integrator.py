@@ -7,6 +7,7 @@ particle's last acceleration (its own field, in its own table). It allows no gat
 step updates the state in place), so its ``resolve`` makes ``forces = auto`` the scatter.
 """
 import json
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -14,8 +15,8 @@ import taichi as ti
 
 from taichi_soft.sim.footprint import FieldCounts
 from taichi_soft.sim.integrators import REGISTRY, make_integrator
-from taichi_soft.sim.integrators.base import Integrator
-from taichi_soft.sim.integrators.options import Option, int_at_least, one_of
+from taichi_soft.sim.integrators.base import ExplicitConfig, Integrator
+from taichi_soft.sim.integrators.options import choice, int_at_least, option
 
 
 @ti.data_oriented
@@ -26,18 +27,17 @@ class ToyEuler(Integrator):
     order = 1
     force_evals = 1
     description = "toy symplectic Euler with substeps (a test's integrator)"
-    OPTIONS = {
-        **Integrator.OPTIONS,
-        "forces": Option("auto", one_of("auto", "scatter", "per_spring"), "auto, scatter or per_spring",
-                         "force strategy; auto: scatter (in-place steps cannot read gathered forces)"),
-        "substeps": Option(1, int_at_least(1), "an integer >= 1", "symplectic Euler steps per step"),
-    }
     FIELDS = FieldCounts(3)  # last_accel
 
-    @classmethod
-    def resolve(cls, options, arch, fast_math, counts):
-        out = dict(options, forces="scatter" if options["forces"] == "auto" else options["forces"])
-        return super().resolve(out, arch, fast_math, counts)
+    @dataclass(frozen=True)
+    class Config(ExplicitConfig):
+        forces: str = choice("auto", ("auto", "scatter", "per_spring"),
+                             "force strategy; auto: scatter (in-place steps cannot read gathered forces)")
+        substeps: int = option(1, int_at_least(1), "an integer >= 1", "symplectic Euler steps per step")
+
+        def resolve(self, arch, fast_math, counts):
+            out = self.but(forces="scatter") if self.forces == "auto" else self
+            return ExplicitConfig.resolve(out, arch, fast_math, counts)
 
     def __init__(self, model, terrain, options=None, contacts=None):
         super().__init__(model, terrain, options, contacts)
@@ -45,8 +45,8 @@ class ToyEuler(Integrator):
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
-        h = dt / self.options["substeps"]
-        for _ in ti.static(range(self.options["substeps"])):
+        h = dt / self.options.substeps
+        for _ in ti.static(range(self.options.substeps)):
             self.forces.spring_pass(x, v)
             for i in range(self.n):
                 a = self.forces.accel(x, v, i, h)
@@ -70,7 +70,7 @@ def test_free_fall_is_symplectic_euler_to_round_off(toy):
     g = np.array([0.0, -9.8, 0.0])
     model, terrain = build(n=3, gravity=tuple(g))
     integ = make_integrator("toy_euler", model, terrain, {"substeps": 2})
-    assert integ.options["forces"] == "scatter" and integ.options["mode"] == "serial"
+    assert integ.options.forces == "scatter" and integ.options.mode == "serial"
     v0 = np.array([1.0, 2.0, -0.5])
     state = model.state()
     state.set(model.x0_np, np.tile(v0, (model.n_particles, 1)))

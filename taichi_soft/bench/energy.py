@@ -69,7 +69,7 @@ def pair_energy(sim, x: np.ndarray, dt: float) -> tuple[float, float]:
     overlap[body[:, None] >= body[None, :]] = 0.0  # each pair of different bodies once
     overlap = np.maximum(overlap, 0.0)
     m_ij = m[:, None] * m[None, :] / np.maximum(m[:, None] + m[None, :], 1e-300)
-    kappa = sim.integrator.options["contact_stiffness"]
+    kappa = sim.integrator.options.contact_stiffness
     return float(np.sum(0.5 * kappa * m_ij * overlap**2) / dt**2), float(overlap.max(initial=0.0))
 
 

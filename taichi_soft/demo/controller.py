@@ -104,7 +104,7 @@ class DemoController(LiveParameters, HandControls):
     @staticmethod
     def _options(name: str, scene) -> dict:
         """The scene's ``[solver]`` options that integrator ``name`` understands."""
-        return {k: v for k, v in scene.data.get("solver", {}).items() if k in REGISTRY[name].OPTIONS}
+        return REGISTRY[name].Config.accepted(scene.data.get("solver", {}))
 
     def _apply_live_settings(self):
         s = self.settings

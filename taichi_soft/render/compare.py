@@ -39,8 +39,7 @@ def solver_options(scene, integrator: str) -> dict:
     """The scene's ``[solver]`` options that ``integrator`` understands (the others are for other methods)."""
     from ..sim.integrators import REGISTRY
 
-    accepted = REGISTRY[integrator].OPTIONS
-    return {k: v for k, v in scene.data.get("solver", {}).items() if k in accepted}
+    return REGISTRY[integrator].Config.accepted(scene.data.get("solver", {}))
 
 
 @dataclass

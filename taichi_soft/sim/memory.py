@@ -112,8 +112,7 @@ def integrator_buffers(scene_data: dict, integrator: str, arch: str, real_bytes:
 
     cls = integrator_class(integrator)
     c = sizes or counts(scene_data)
-    given = {k: v for k, v in scene_data.get("solver", {}).items() if k in cls.OPTIONS}
-    options = cls.resolve(cls.parse_options(given), arch, fast_math, c)
+    options = cls.configure(cls.Config.accepted(scene_data.get("solver", {})), arch, fast_math, c)
     return cls.buffers(options, arch, c, real_bytes)
 
 

@@ -21,13 +21,15 @@ restitution, the same for every method) and the divergence check (any non-finite
 first diverged step index.
 """
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 import taichi as ti
 
-from ...errors import UserError
 from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
 from ..linalg import SkylineCholesky
-from .options import Option, one_of
+from .options import Config, choice
 
 # Parallel launches win above this many particles on a CPU. Implicit solvers (many launches per
 # step in parallel mode): 4096. Explicit methods, semi-implicit Euler on the 2-core VM, f64,
@@ -43,12 +45,44 @@ MB = 2**20
 PING_PONG = FieldCounts(6, 0, 0, 0)  # the second x, v of ping-pong steps (_use_ping_pong)
 
 
+@dataclass(frozen=True)
+class IntegratorConfig(Config):
+    """The option every integrator has: how its steps launch."""
+
+    # auto: serial launches on a CPU up to this many particles
+    serial_max_particles: ClassVar[int] = SERIAL_MAX_PARTICLES_EXPLICIT
+    mode: str = choice("auto", ("auto", "serial", "parallel"),
+                       "serial: many steps per launch on one thread; parallel: one launch per step; "
+                       "auto: serial for small bodies on a CPU")
+
+    def resolve(self, arch: str, fast_math: bool, counts: Counts) -> "IntegratorConfig":
+        if self.mode == "auto":
+            return self.but(mode="serial" if arch == "cpu" and counts.particles <= self.serial_max_particles
+                            else "parallel")
+        return self
+
+
+@dataclass(frozen=True)
+class ExplicitConfig(IntegratorConfig):
+    """The explicit methods' options: launches, and how the force pass sums spring forces."""
+
+    forces: str = choice("auto", ("auto", "scatter", "per_spring", "gather"),
+                         "scatter: each spring once, added to both ends; per_spring: each spring once, stored; "
+                         "gather: each particle evaluates its springs; auto: by backend and fast math")
+
+    def resolve(self, arch: str, fast_math: bool, counts: Counts) -> "ExplicitConfig":
+        out = super().resolve(arch, fast_math, counts)
+        if out.forces == "auto":
+            out = out.but(forces=auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math))
+        return out
+
+
 @ti.data_oriented
 class Integrator:
     """Base class. Subclasses set ``name``, ``order``, ``force_evals`` and ``_step_body(x, v, dt, step)``;
-    they declare what they allocate in ``FIELDS`` (per particle and spring, beyond the force pass)
-    or, where it depends on their options, by extending ``buffers``; options with an ``auto``
-    value of their own become concrete in ``resolve``."""
+    they declare their options as ``Config`` (``ExplicitConfig``, or a subclass whose ``resolve``
+    makes its own ``auto`` values concrete) and what they allocate in ``FIELDS`` (per particle and
+    spring, beyond the force pass) or, where it depends on their options, by extending ``buffers``."""
 
     name = "base"
     order = 0  # global order of accuracy in dt (smooth problems)
@@ -60,28 +94,18 @@ class Integrator:
     # numpy, the Taichi runtime and the compiled kernels; the midpoint of a run that compiles its
     # kernels (empty offline cache) and one that loads them (memory.py). Not measured: the largest.
     BASE_BYTES = 175 * MB
-    # Options a scene's [solver] table (or --set solver.NAME=VALUE) may set (options.Option);
-    # subclasses extend it.
-    OPTIONS = {
-        "mode": Option("auto", one_of("auto", "serial", "parallel"), "auto, serial or parallel",
-                       "serial: many steps per launch on one thread; parallel: one launch per step; "
-                       "auto: serial for small bodies on a CPU"),
-        "forces": Option("auto", one_of("auto", "scatter", "per_spring", "gather"),
-                         "auto, scatter, per_spring or gather",
-                         "scatter: each spring once, added to both ends; per_spring: each spring once, stored; "
-                         "gather: each particle evaluates its springs; auto: by backend and fast math"),
-    }
+    Config = ExplicitConfig  # its options (options.py); the implicit solvers' are implicit/options.py
 
-    def __init__(self, model, terrain, options: dict | None = None, contacts=None):
+    def __init__(self, model, terrain, options: "dict | Config | None" = None, contacts=None):
         self.model = model
         self.terrain = terrain
         self.n = model.n_particles
-        self.options = self.resolve(self.parse_options(options or {}), *running_target(), model_counts(model))
+        self.options = self.configure(options, *running_target(), model_counts(model))
         self.speed2_limit = ti.field(float, ())  # divergence threshold on |v|^2 [m^2/s^2]
         self.speed2_limit[None] = DIVERGENCE_SPEED2
         self.diverged_step = ti.field(ti.i32, ())
         self.diverged_step[None] = NOT_DIVERGED
-        self.mode = self.options["mode"]
+        self.mode = self.options.mode
         self._step_counter = 0
         model.add_listener(self)
         # Body-body contact (collision.BodyContacts, shared by every integrator of a simulation) or
@@ -98,48 +122,28 @@ class Integrator:
         self._xo = self._vo = None  # the second state buffers of ping-pong steps
 
     @classmethod
-    def parse_options(cls, given: dict) -> dict:
-        """Defaults overlaid with ``given``; unknown names or bad values raise ``UserError``."""
-        out = {name: option.default for name, option in cls.OPTIONS.items()}
-        for name, value in given.items():
-            if name not in cls.OPTIONS:
-                raise UserError(f"solver.{name}: not an option of {cls.name}; its options are {', '.join(cls.OPTIONS)}")
-            option = cls.OPTIONS[name]
-            if not option.check(value):
-                raise UserError(f"solver.{name} = {value!r}: must be {option.allowed} ({option.doc})")
-            out[name] = value
-        return out
+    def configure(cls, given: "dict | Config | None", arch: str, fast_math: bool, counts: Counts) -> Config:
+        """The options from ``given`` (a ``[solver]`` table of this integrator's options, or a
+        ``Config``), checked (``UserError``) and resolved for ``arch``, ``fast_math`` and ``counts``:
+        what the integrator's construction and ``memory.estimate`` both use."""
+        config = given if isinstance(given, Config) else cls.Config.parse(given or {}, cls.name)
+        return config.resolve(arch, fast_math, counts)
 
     @classmethod
-    def resolve(cls, options: dict, arch: str, fast_math: bool, counts: Counts) -> dict:
-        """``options`` (parsed) with every ``auto`` made concrete for backend ``arch`` ("cpu" or a GPU
-        backend's name), the ``fast_math`` setting and the scene's ``counts``: the one place these
-        choices are made, for the integrator's construction and for ``memory.estimate`` alike.
-        Subclasses with ``auto`` options of their own extend it."""
-        out = dict(options)
-        cpu = arch == "cpu"
-        if out["mode"] == "auto":
-            limit = SERIAL_MAX_PARTICLES if cls.implicit else SERIAL_MAX_PARTICLES_EXPLICIT
-            out["mode"] = "serial" if cpu and counts.particles <= limit else "parallel"
-        if out["forces"] == "auto":
-            out["forces"] = auto_strategy("cpu" if cpu else "gpu", fast_math)
-        return out
-
-    @classmethod
-    def buffers(cls, options: dict, arch: str, counts: Counts, real_bytes: int) -> Buffers:
+    def buffers(cls, options: Config, arch: str, counts: Counts, real_bytes: int) -> Buffers:
         """What this integrator allocates for ``counts`` with ``options`` (resolved), besides the
         model's and the state's fields: the force pass's buffers (explicit methods), ``FIELDS``,
         and the second state of ping-pong steps. tests/test_memory.py checks it against the fields
         a real integrator allocates."""
         out = Buffers(cls.FIELDS)
         if not cls.implicit:
-            out = out + pass_buffers(options["forces"], counts)
+            out = out + pass_buffers(options.forces, counts)
         if cls.uses_ping_pong(options):
             out = out + Buffers(PING_PONG)
         return out
 
     @classmethod
-    def uses_ping_pong(cls, options: dict) -> bool:
+    def uses_ping_pong(cls, options: Config) -> bool:
         """Whether steps with these (resolved) options go through ``_step_into`` and a second state."""
         return False
 
@@ -214,7 +218,7 @@ class Integrator:
 
     # -- launch strategies ------------------------------------------------------------------
     def _force_strategy(self) -> str:
-        return self.options["forces"]  # resolved
+        return self.options.forces  # resolved
 
     def _serial(self) -> bool:
         return self.mode == "serial"  # resolved

@@ -58,9 +58,9 @@ class ExplicitRungeKutta(Integrator):
         return [any(cls._a(t, j) != 0 for t in range(j + 2, stages)) for j in range(stages)]
 
     @classmethod
-    def uses_ping_pong(cls, options: dict) -> bool:
+    def uses_ping_pong(cls, options) -> bool:
         """One stage with gathered forces reads the old state while writing the new: ping-pong."""
-        return len(cls.b) == 1 and options["forces"] == "gather"
+        return len(cls.b) == 1 and options.forces == "gather"
 
     @classmethod
     def buffers(cls, options, arch, counts, real_bytes) -> Buffers:
@@ -162,9 +162,9 @@ class SemiImplicitEuler(Integrator):
             self._use_ping_pong()
 
     @classmethod
-    def uses_ping_pong(cls, options: dict) -> bool:
+    def uses_ping_pong(cls, options) -> bool:
         """Gathered forces read the old state while the step writes the new: ping-pong."""
-        return options["forces"] == "gather"
+        return options.forces == "gather"
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):

@@ -29,6 +29,7 @@ from . import slots as S
 from .accounts import StepAccounts
 from .contact import ContactSet
 from .objective import Objective
+from .options import ImplicitConfig
 from .pairs import PairContacts
 from .restitution import SpreadBounce
 from .scheme import StepScheme
@@ -43,8 +44,8 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
     (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``DIRECTION``
-    (a ``walk.Walk``: dx from rhs at the iterate x; by default the PCG solve), ``_tol()`` and
-    ``_max_iterations()`` (the residual tolerance [m/s^2] and iteration cap from their options). A
+    (a ``walk.Walk``: dx from rhs at the iterate x; by default the PCG solve) and ``Config`` (an
+    ``options.ImplicitConfig``: its ``residual_tol`` and ``max_iterations`` stop the iterations). A
     solver whose direction has phases of its own extends ``IN_KERNEL`` and ``LAUNCHES`` with them.
     """
 
@@ -58,6 +59,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     # (9), the scheme's base displacement and the last step's end state (9), the active-set flags
     # (3 ints); per spring: damper direction and gradient (6 reals).
     FIELDS = ADJACENCY + FieldCounts(80, 3, 6, 0)
+    Config = ImplicitConfig  # each solver's own extends it (options.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
     IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
 
@@ -66,7 +68,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         self._init_objective(model)
         self._init_contact()
         self._init_restitution()
-        self._init_scheme(self.options["scheme"] == "bdf2")
+        self._init_scheme(self.options.scheme == "bdf2")
         n = self.n
         o = self.options
         self.v_new = ti.Vector.field(3, float, n)  # velocity from the solve [m/s]
@@ -90,22 +92,22 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         self.clamp_on = ti.field(ti.i32, ())
         self.tol2 = ti.field(float, ())  # tolerance on RES2 for this step's h_eff (see _begin_step)
         self.tol_acc = ti.field(float, ())  # the solver's residual tolerance [m/s^2]
-        self.tol_acc[None] = self._tol()
+        self.tol_acc[None] = o.residual_tol
         self.roundoff = ti.field(float, ())  # relative objective noise the line search ignores
         self.roundoff[None] = 16 * np.finfo(model.real).eps
         self.energy_tol = ti.field(float, ())  # relative energy growth counted as round-off
         self.energy_tol[None] = 1e3 * np.finfo(model.real).eps
-        self.friction_velocity[None] = o["friction_velocity"]
-        self.max_iters[None] = self._max_iterations()
-        self.ls_iters[None] = o["line_search_iters"]
-        self.max_updates[None] = o["friction_updates"]
-        self.cg_iters[None] = o["cg_iters"]
-        self.cg_tol[None] = o["cg_tol"]
-        self.ew_forcing[None] = int(o.get("forcing") == "eisenstat_walker")
-        self.velocity_tol[None] = o["velocity_tol"]
+        self.friction_velocity[None] = o.friction_velocity
+        self.max_iters[None] = o.max_iterations
+        self.ls_iters[None] = o.line_search_iters
+        self.max_updates[None] = o.friction_updates
+        self.cg_iters[None] = o.cg_iters
+        self.cg_tol[None] = o.cg_tol
+        self.ew_forcing[None] = int(o.eisenstat_walker)
+        self.velocity_tol[None] = o.velocity_tol
         # The energy account assumes no pinned particle does work on the body.
-        self.clamp_on[None] = int(o["energy_clamp"] and not np.any(model.mass_np <= 0))
-        self.release_tol[None] = max(self._tol(), 0.1)
+        self.clamp_on[None] = int(o.energy_clamp and not np.any(model.mass_np <= 0))
+        self.release_tol[None] = max(o.residual_tol, 0.1)
         self._masses_changed = True  # (notify_model_changed) total mass and translation test to refresh
         self.in_kernel = self.IN_KERNEL(self)  # the serial driver's phases
         self.launches = self.LAUNCHES(self)  # the parallel driver's
@@ -122,8 +124,8 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     def contacts(self, value):
         self._contacts = value
         self.pairs = None
-        if value is not None and self.options["body_contact"]:
-            self.pairs = PairContacts(self, self.options["contact_stiffness"])
+        if value is not None and self.options.body_contact:
+            self.pairs = PairContacts(self, self.options.contact_stiffness)
 
     def _has_pairs(self) -> bool:
         return self.pairs is not None
@@ -131,12 +133,6 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     @ti.func
     def _body_contacts(self, x: ti.template(), v: ti.template(), dt):
         pass  # inside the step (pairs.py)
-
-    def _tol(self) -> float:
-        raise NotImplementedError
-
-    def _max_iterations(self) -> int:
-        raise NotImplementedError
 
     def _prepare(self, dt: float):
         """Hook run before each ``advance`` with its dt [s] (fast mass-spring refactorises here)."""

@@ -52,14 +52,6 @@ class LaplacianMatrix:
     the ``global_solver`` option."""
 
     @classmethod
-    def resolve(cls, options, arch, fast_math, counts):
-        """``global_solver = auto``: cholesky where it pays (``cholesky_pays``), else pcg."""
-        out = super().resolve(options, arch, fast_math, counts)
-        if out["global_solver"] == "auto":
-            out["global_solver"] = "cholesky" if cholesky_pays(arch, counts) else "pcg"
-        return out
-
-    @classmethod
     def buffers(cls, options, arch, counts, real_bytes):
         """The factor (index fields, the envelope's values) when it factorises; and the host bytes
         above the fields while the envelope is sized: the downloaded spring ends (8 bytes per
@@ -67,7 +59,7 @@ class LaplacianMatrix:
         model's fields and before the integrator's own and the state's, so only what exceeds those
         (counted whatever the choice, as ``auto`` sizes it to choose: 0 for every lattice)."""
         out = super().buffers(options, arch, counts, real_bytes)
-        if options["global_solver"] in FACTORISED:
+        if options.global_solver in FACTORISED:
             out = out + Buffers(CHOLESKY_INDEX, reals=counts.envelope)
         later = (cls.FIELDS + STATE).bytes(counts.particles, counts.springs, real_bytes)
         return out + Buffers(transient=max(0, 16 * counts.springs + 16 * counts.particles - later))

@@ -19,11 +19,11 @@ import taichi as ti
 from ...footprint import Buffers, FieldCounts
 from ...linalg import PCG
 from ..base import MB, model_counts, register, running_target
-from . import options as opt
 from . import slots as S
 from .driver import ImplicitIntegrator
 from .laplacian import LaplacianMatrix
 from .lbfgs_walk import LBFGS_DIRECTION, LocalGlobalInKernel, LocalGlobalLaunches
+from .options import LocalGlobalConfig
 
 
 @register
@@ -33,7 +33,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
 
     name = "fast_mass_spring"
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
-    OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.LOCAL_GLOBAL}
+    Config = LocalGlobalConfig
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts(1, 0, 0, 0)  # diagonal of M + L
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
     DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (lbfgs_walk.py)
@@ -43,16 +43,16 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     def buffers(cls, options, arch, counts, real_bytes):
         """Besides the factor's (``LaplacianMatrix.buffers``): the L-BFGS pairs, 6 reals per particle
         per pair kept (s, y) and 6 for the iterate and rhs it saves (none with ``history = 0``)."""
-        history = options["history"]
+        history = options.history
         return super().buffers(options, arch, counts, real_bytes) + Buffers(FieldCounts(6 * history + 6 if history else 0))
 
     def __init__(self, model, terrain, options=None, contacts=None):
         n = model.n_particles
-        chosen = self.resolve(self.parse_options(options or {}), *running_target(), model_counts(model))
-        solver = chosen["global_solver"]
+        chosen = self.configure(options, *running_target(), model_counts(model))
+        solver = chosen.global_solver
         self.global_solver = solver
-        self._init_laplacian(model, solver, contact_auto=chosen["contact_solve"] == "auto")
-        self.scaled_contact = self.factorised and chosen["contact_solve"] != "pcg"  # compiled in or not
+        self._init_laplacian(model, solver, contact_auto=chosen.contact_solve == "auto")
+        self.scaled_contact = self.factorised and chosen.contact_solve != "pcg"  # compiled in or not
         self.pcg = PCG(n)
         # The grab's term in the factor (Sherman-Morrison, see _factor_solve): w = A^-1 e_i for
         # the grabbed particle i, solved once per grab and factorisation.
@@ -62,7 +62,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         self.grab_w_for[None] = -1
         self._grab_w_key = None
         # L-BFGS within a step (fixed at construction: a compile-time constant), see lbfgs_walk.py.
-        self.history = chosen["history"]
+        self.history = chosen.history
         if self.history:
             self.lb_s = ti.Vector.field(3, float, (n, self.history))  # x_{k+1} - x_k [m]
             self.lb_y = ti.Vector.field(3, float, (n, self.history))  # rhs_k - rhs_{k+1} [kg m]
@@ -73,11 +73,6 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             self.lb_dot = ti.field(float, ())
         super().__init__(model, terrain, chosen, contacts)  # resolved: nothing left to choose there
 
-    def _tol(self):
-        return self.options["tol"]
-
-    def _max_iterations(self):
-        return self.options["iterations"]
 
     def _prepare(self, dt: float):
         self._prepare_laplacian(dt)

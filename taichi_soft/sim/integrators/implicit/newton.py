@@ -13,7 +13,7 @@ from ...footprint import FieldCounts
 from ...linalg import PCG
 from ...model import code_spring
 from ..base import MB, register
-from . import options as opt
+from .options import NewtonConfig
 from . import slots as S
 from .driver import ImplicitIntegrator
 
@@ -25,7 +25,7 @@ class ImplicitEuler(ImplicitIntegrator):
 
     name = "implicit_euler"
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
-    OPTIONS = {**ImplicitIntegrator.OPTIONS, **opt.NEWTON}
+    Config = NewtonConfig
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
     BASE_BYTES = 175 * MB  # measured (memory.py): process, runtime, compiled kernels
 
@@ -35,12 +35,6 @@ class ImplicitEuler(ImplicitIntegrator):
         self.precond = ti.Matrix.field(3, 3, float, n)  # inverse 3x3 diagonal blocks [1/kg]
         self.pcg = PCG(n)
         super().__init__(model, terrain, options, contacts)
-
-    def _tol(self):
-        return self.options["newton_tol"]
-
-    def _max_iterations(self):
-        return self.options["newton_iters"]
 
     @ti.func
     def _store_spring_hessian(self, s, hs):
