@@ -113,10 +113,19 @@ def test_check_fits_and_available(monkeypatch):
     monkeypatch.setattr(memory, "_host_available_bytes", lambda: need - 1)
     from taichi_soft.errors import UserError
 
-    with pytest.raises(UserError, match="available"):
+    with pytest.raises(UserError, match="available") as refused:
         memory.check_fits(data, None, "f64", "cpu")
-    # f32 needs less than f64; recorded states need more
-    assert memory.estimate_bytes(data, None, "f32", "cpu") < need
+    # the hint to use f32 only where f32 needs less (with fast math the gather's rows may not)
+    f32_smaller = memory.estimate_bytes(data, None, "f32", "cpu") < need
+    assert ("--precision f32" in str(refused.value)) == f32_smaller
+    no_fm = memory.estimate_bytes(data, None, "f64", "cpu", fast_math=False)
+    monkeypatch.setattr(memory, "_host_available_bytes", lambda: no_fm - 1)
+    with pytest.raises(UserError, match="--precision f32"):
+        memory.check_fits(data, None, "f64", "cpu", fast_math=False)
+    # f32 needs less than f64 without fast math (scatter forces; with it, the gather's f32 rows keep
+    # (k, kd) copies that f64 reads through the groups); recorded states need more
+    assert memory.estimate_bytes(data, None, "f32", "cpu", fast_math=False) < memory.estimate_bytes(
+        data, None, "f64", "cpu", fast_math=False)
     assert memory.estimate(data, None, "f64", "cpu", record_states=True)["host"] > need
 
 

@@ -38,7 +38,8 @@ def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: 
     inverse mass. Per spring: (k, kd). ``scatter``: ends (2 i32), rest length.
     ``per_spring``: ends, rest length, the spring force written and read; adjacency: 1 i32 per
     spring end plus offsets and splits. ``gather``: per slot of its padded rows (``row_width``
-    per particle, rows.py) the other end (i32), rest length and (k, kd).
+    per particle, rows.py) the other end (i32), rest length and, in f32, the (k, kd) copy (f64
+    reads a group id (i32) instead: ``forces.rows_look_up_groups``).
     """
     vec = 3 * real_bytes
     particles = n_particles * (4 * vec + real_bytes)
@@ -47,7 +48,10 @@ def bytes_per_step(n_particles: int, n_springs: int, real_bytes: int, strategy: 
     if strategy == "per_spring":
         springs = n_springs * (8 + 3 * real_bytes + 2 * vec) + 2 * n_springs * 4 + 2 * n_particles * 4
     else:
-        springs = n_particles * row_width * (4 + 3 * real_bytes)
+        from ..sim.forces import rows_look_up_groups
+
+        per_slot = 8 + real_bytes if rows_look_up_groups(real_bytes) else 4 + 3 * real_bytes
+        springs = n_particles * row_width * per_slot
     return particles + springs
 
 

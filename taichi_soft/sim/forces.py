@@ -16,6 +16,7 @@ Damper on particle a (seed):  f_a = -kd ((v_a - v_b) . l) l
   stability sweep) acts on the next step.
 """
 
+import numpy as np
 import taichi as ti
 
 from .footprint import Buffers, FieldCounts
@@ -75,13 +76,24 @@ def auto_strategy(arch: str, fast_math: bool) -> str:
     return "gather" if fast_math else "scatter"
 
 
-def pass_buffers(strategy: str, counts) -> Buffers:
-    """What a fused ``ForceEvaluator`` of ``strategy`` allocates for ``counts`` (footprint.Counts):
-    scatter: force sums | (k, kd); gather: the padded rows (rows.py), width x (2 ints + 3 reals) per
-    particle. ``per_spring`` is counted as scatter, its close upper bound."""
+def rows_look_up_groups(real_bytes: int) -> bool:
+    """Whether the gather's padded rows read each slot's (k, kd) through its spring group (f64)
+    instead of a per-slot copy (f32). Measured one change at a time (``bench.kernel_study``, n = 40,
+    one thread, fast math, quiet machine, 2026-12-03), steps/s against the plain CSR kernel: f64,
+    copies 0.74x, group lookup 1.17x (16 bytes a slot of copies made the f64 row bandwidth-bound:
+    the lookup reads a 4-byte group id and two values of a table that stays in cache); f32, copies
+    1.18x, lookup 1.07x (8 bytes a slot; the lookup's two extra gathers cost more than they save)."""
+    return real_bytes == 8
+
+
+def pass_buffers(strategy: str, counts, real_bytes: int) -> Buffers:
+    """What a fused ``ForceEvaluator`` of ``strategy`` allocates for ``counts`` (footprint.Counts)
+    with reals of ``real_bytes``: scatter: force sums | (k, kd); gather: the padded rows (rows.py),
+    per slot 2 ints, the rest length and, without group lookups (f32), the (k, kd) copy.
+    ``per_spring`` is counted as scatter, its close upper bound."""
     if strategy == "gather":
         slots = counts.particles * counts.row_width
-        return Buffers(reals=3 * slots, ints=2 * slots)
+        return Buffers(reals=(1 if rows_look_up_groups(real_bytes) else 3) * slots, ints=2 * slots)
     return Buffers(FieldCounts(3, 0, 2, 0))
 
 # Iterations between two slabs of the parallel scatter's loop: at least the largest task Taichi
@@ -125,7 +137,8 @@ class ForceEvaluator:
         self.parallel = parallel
         self.rows = None
         if fused and strategy == "gather":
-            self.rows = SpringRows(model)  # padded rows (rows.py); compute() walks them too
+            # padded rows (rows.py); compute() walks them too
+            self.rows = SpringRows(model, copies=not rows_look_up_groups(np.dtype(model.real).itemsize))
         elif not (fused and strategy == "scatter"):
             model.ensure_adjacency()  # per_spring sums, and compute(), walk each particle's springs
         m = max(model.n_springs, 1)
@@ -151,6 +164,10 @@ class ForceEvaluator:
     def _has_rows(self) -> bool:
         return self.rows is not None
 
+    def _row_copies(self) -> bool:
+        """Whether the gather's rows hold (k, kd) copies for ``refresh`` to keep (else: group lookups)."""
+        return self._has_rows() and self.rows.copies
+
     # -- parameter copies ----------------------------------------------------------------------
     @ti.func
     def refresh(self):
@@ -172,13 +189,13 @@ class ForceEvaluator:
         self._copied[None] = 1
         # Serial even in parallel launches: an empty parallel loop still costs a thread-pool round
         # trip every step, and a change (a slider move) is rare; copying then takes a few ms.
-        if ti.static(self._has_rows()):
+        if ti.static(self._row_copies()):
             rows = self.rows
             ti.loop_config(serialize=True)
             for e in range(self._changed[None] * m.n_particles * rows.width):
                 g = rows.group[e]
                 rows.kkd[e] = ti.Vector([m.group_k[g], m.group_kd[g]])  # padding: zero force anyway
-        else:
+        elif ti.static(not self._has_rows()):
             ti.loop_config(serialize=True)
             for s in range(self._changed[None] * m.n_springs):
                 g = m.spring_group[s]
@@ -237,13 +254,13 @@ class ForceEvaluator:
             f = self.f[i]
             self.f[i] = ti.Vector.zero(float, 3)  # ready for the next pass
         else:
-            f = self._row_force(x, v, i, False)
+            f = self._row_force(x, v, i, ti.static(not self._row_copies()))
         return self.particle_accel(x, v, i, f, dt)
 
     @ti.func
     def _row_force(self, x: ti.template(), v: ti.template(), i, lookup: ti.template()):
         """gather: spring force sum [N] on particle i over its padded row (rows.py); (k, kd) from
-        the slot's copy, or with ``lookup`` from its group. No branch in the loop and a constant
+        the slot's copy, or with ``lookup`` (compile-time) from its group. No branch in the loop and a constant
         trip count: LLVM vectorises it (with fast math, which lets it reorder the sum)."""
         rows = self.rows
         w = ti.static(rows.width)

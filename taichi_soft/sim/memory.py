@@ -237,6 +237,11 @@ def check_fits(scene_data: dict, integrator, precision: str, arch: str, record_s
         checks.append((f"{e['arch']} device", e["device"], available_bytes(e["arch"])))
     for where, need, have in checks:
         if have is not None and need > have:
-            hint = " or --precision f32" if precision == "f64" else ""
+            # f32 halves the state, but the gather's rows hold (k, kd) copies in f32 that f64 reads
+            # through the groups (forces.rows_look_up_groups): suggest it only where it needs less.
+            smaller = precision == "f64" and sum(
+                estimate(scene_data, integrator, "f32", arch, record_states, fast_math)[k] for k in ("host", "device")) \
+                < e["host"] + e["device"]
+            hint = " or --precision f32" if smaller else ""
             raise UserError(f"the bodies need about {_gb(need)} of {where} memory ({what}) but {_gb(have)} is available; "
                             f"use smaller bodies (body.N.n){hint}")

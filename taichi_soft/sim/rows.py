@@ -12,7 +12,8 @@ entirely scalar.
 Rows are built on the device from ``model.spring_ends`` (no host copy of the springs, no CSR
 adjacency): a serial pass over the springs, so each row lists its springs by increasing id and
 every build, every run, sums a particle's forces in the same order (bit-identical repeats).
-Memory per particle: ``width`` x (2 ints + 3 reals).
+Memory per particle: ``width`` x (2 ints + 3 reals), or 2 ints + 1 real without the (k, kd)
+copies (``copies=False``: the force pass reads them through the group, ``forces.rows_look_up_groups``).
 """
 
 import numpy as np
@@ -33,10 +34,10 @@ def lattice_width(n: int) -> int:
 
 @ti.data_oriented
 class SpringRows:
-    """The padded rows of one model (see the module docstring). ``kkd`` is filled from the groups
-    by ``ForceEvaluator.refresh``, in the step kernels, whenever the groups change."""
+    """The padded rows of one model (see the module docstring). ``kkd`` (with ``copies``) is filled
+    from the groups by ``ForceEvaluator.refresh``, in the step kernels, whenever the groups change."""
 
-    def __init__(self, model):
+    def __init__(self, model, copies: bool = True):
         self.model = model
         n = model.n_particles
         degree = ti.ndarray(ti.i32, max(n, 1))  # springs per particle, then the fill cursor
@@ -45,7 +46,8 @@ class SpringRows:
         self.other = ti.field(ti.i32, slots)
         self.rest = ti.field(float, slots)
         self.group = ti.field(ti.i32, slots)
-        self.kkd = ti.Vector.field(2, float, slots)
+        self.copies = copies  # a compile-time constant of the force pass
+        self.kkd = ti.Vector.field(2, float, slots) if copies else None
         self._fill(degree)
 
     @ti.kernel

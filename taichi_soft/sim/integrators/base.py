@@ -137,7 +137,7 @@ class Integrator:
         a real integrator allocates."""
         out = Buffers(cls.FIELDS)
         if not cls.implicit:
-            out = out + pass_buffers(options.forces, counts)
+            out = out + pass_buffers(options.forces, counts, real_bytes)
         if cls.uses_ping_pong(options):
             out = out + Buffers(PING_PONG)
         return out
