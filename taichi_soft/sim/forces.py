@@ -67,7 +67,9 @@ def auto_strategy(arch: str, fast_math: bool) -> str:
 
     GPU: gather (the scatter's slab passes would run one slab per thread). CPU with fast math:
     gather, whose padded rows LLVM vectorises (fast math lets it reorder each particle's sum):
-    1.5x the scatter at one thread, n = 10 and n = 40, f32 and f64, every explicit method
+    1.5x the scatter at one thread in f32 (n = 10 and 40, every explicit method), as fast as the
+    scatter in f64 at n = 40 (1.01x against 0.99x the plain kernel, with group lookups:
+    ``rows_look_up_groups``) and needing no slab passes for a second thread
     (docs/benchmarks/README.md, issue 25). CPU without fast math: nothing is vectorised and the
     scatter, which evaluates each spring once instead of twice, is 1.3x the gather.
     """
