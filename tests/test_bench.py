@@ -1,6 +1,7 @@
 """Benchmark machinery checked against known answers (speed itself is never asserted)."""
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from taichi_soft.bench.stability import largest_stable_dt
 from taichi_soft.sim.integrators import make_integrator
@@ -104,9 +105,17 @@ def test_references_of_the_speed_study_take_the_engines_steps(kind):
     assert np.abs(x - sim.model.x0_np).max() > 1e-4  # it moved
 
 
-def test_bench_report_quick_writes_every_file(cli, tmp_path):
-    out = tmp_path / "bench"
-    r = cli("bench", "report", "--quick", "--out", out, timeout=900)
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory):
+    """One ``bench report --quick`` run (the heaviest command in the suite) for every test that reads
+    its files: (CompletedProcess, output folder). It runs the precision study too, so its test
+    reads the report's precision files and REPORT.md's precision section."""
+    out = tmp_path_factory.mktemp("report") / "bench"
+    return run_cli("bench", "report", "--quick", "--out", out, timeout=900), out
+
+
+def test_bench_report_quick_writes_every_file(quick_report):
+    r, out = quick_report
     assert r.returncode == 0, r.stderr[-2000:]
     expected = ["REPORT.md", "accuracy_smooth.csv", "accuracy_smooth_wall.png", "accuracy_smooth_evals.png",
                 "accuracy_drop.csv", "accuracy_drop_wall.png", "accuracy_drop_evals.png", "stability_terrain.csv",
@@ -197,19 +206,19 @@ def test_precision_fronts_and_equal_error_interpolation_on_synthetic_fronts():
     assert wins_from(v, "flat", 0.05) is None
 
 
-def test_bench_precision_quick_writes_files_and_its_verdict(cli, tmp_path):
-    """``bench precision --quick``: the CSVs and plots, one row per (case, method, stiffness, step),
-    explicit steps at or below 0.9 x their linear limit, and a Markdown verdict that is the one the
-    verdict functions give on the CSV's rows (recomputed here)."""
+def test_bench_precision_quick_writes_files_and_its_verdict(quick_report):
+    """The precision study at its quick size (run by ``bench report --quick``, as ``bench precision
+    --quick`` runs it): the CSVs and plots, one row per (case, method, stiffness, step), explicit
+    steps at or below 0.9 x their linear limit, and a Markdown verdict that is the one the verdict
+    functions give on the CSV's rows (recomputed here)."""
     import csv
     import math
 
     from taichi_soft.bench import precision, verdict
 
-    out = tmp_path / "prec"
-    r = cli("bench", "precision", "--quick", "--workers", "2", "--out", out, timeout=300)
+    r, out = quick_report
     assert r.returncode == 0, r.stderr[-2000:]
-    for name in ("PRECISION.md", "precision.csv", "precision_references.csv", "precision_wall.png", "precision_evals.png",
+    for name in ("REPORT.md", "precision.csv", "precision_references.csv", "precision_wall.png", "precision_evals.png",
                  "plausibility.csv"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     rows = list(csv.DictReader(open(out / "precision.csv")))
@@ -229,7 +238,7 @@ def test_bench_precision_quick_writes_files_and_its_verdict(cli, tmp_path):
     refs = list(csv.DictReader(open(out / "precision_references.csv")))
     assert {(x["case"], float(x["stiffness_scale"])) for x in refs} == {(c, s) for c in precision.CASES
                                                                          for s in precision.QUICK_STIFFNESS}
-    md = (out / "PRECISION.md").read_text()
+    md = (out / "REPORT.md").read_text()
     assert "## Work-precision at equal error" in md and "Command:" in md and "Machine:" in md
     wall_table = md.split("### Verdict")[1].splitlines()  # the first verdict: wall time
     for v in verdict.verdict(rows):

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..sim.grab import attach as attach_grab
-from ..sim.integrators import REGISTRY, make_integrator
+from ..sim.integrators import REGISTRY, integrator_class, make_integrator
 from ..sim.lattice import SPRING_KINDS, rotation_matrix
 from ..sim.scene import load_scene
 from ..sim.simulation import Simulation
@@ -104,7 +104,7 @@ class DemoController(LiveParameters, HandControls):
     @staticmethod
     def _options(name: str, scene) -> dict:
         """The scene's ``[solver]`` options that integrator ``name`` understands."""
-        return REGISTRY[name].Config.accepted(scene.data.get("solver", {}))
+        return integrator_class(name).Config.accepted(scene.data.get("solver", {}))  # UserError if unknown
 
     def _apply_live_settings(self):
         s = self.settings

@@ -66,12 +66,9 @@ def auto_strategy(arch: str, fast_math: bool) -> str:
     """The force strategy ``forces = "auto"`` picks on backend ``arch`` ("cpu", "cuda", ...).
 
     GPU: gather (the scatter's slab passes would run one slab per thread). CPU with fast math:
-    gather, whose padded rows LLVM vectorises (fast math lets it reorder each particle's sum):
-    1.5x the scatter at one thread in f32 (n = 10 and 40, every explicit method), as fast as the
-    scatter in f64 at n = 40 (1.01x against 0.99x the plain kernel, with group lookups:
-    ``rows_look_up_groups``) and needing no slab passes for a second thread
-    (docs/benchmarks/README.md, issue 25). CPU without fast math: nothing is vectorised and the
-    scatter, which evaluates each spring once instead of twice, is 1.3x the gather.
+    gather, whose padded rows LLVM vectorises: 1.5x the scatter at one thread in f32, as fast in
+    f64 at n = 40 (``rows_look_up_groups``), no slab passes (docs/benchmarks/README.md, issue 25).
+    CPU without fast math: nothing vectorises; the scatter (each spring once) is 1.3x the gather.
     """
     if arch != "cpu":
         return "gather"
@@ -79,12 +76,10 @@ def auto_strategy(arch: str, fast_math: bool) -> str:
 
 
 def rows_look_up_groups(real_bytes: int) -> bool:
-    """Whether the gather's padded rows read each slot's (k, kd) through its spring group (f64)
-    instead of a per-slot copy (f32). Measured one change at a time (``bench.kernel_study``, n = 40,
-    one thread, fast math, quiet machine, 2026-12-03), steps/s against the plain CSR kernel: f64,
-    copies 0.74x, group lookup 1.17x (16 bytes a slot of copies made the f64 row bandwidth-bound:
-    the lookup reads a 4-byte group id and two values of a table that stays in cache); f32, copies
-    1.18x, lookup 1.07x (8 bytes a slot; the lookup's two extra gathers cost more than they save)."""
+    """Whether the gather's rows read each slot's (k, kd) through its group (f64) instead of a
+    per-slot copy (f32). ``bench.kernel_study``, n = 40, one thread (docs/benchmarks/README.md),
+    against the plain CSR kernel: f64 copies 0.74x, lookups 1.17x (16 bytes a slot of copies);
+    f32 copies 1.18x, lookups 1.07x (the two extra gathers cost more than 8 bytes save)."""
     return real_bytes == 8
 
 
