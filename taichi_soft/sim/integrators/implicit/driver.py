@@ -149,6 +149,21 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
                 out = q - self.normal[i].dot(q) * self.normal[i]
         return out
 
+    @ti.func
+    def _filtered_inverse(self, i, block):
+        """Inverse of particle i's diagonal 3x3 ``block`` as a block-Jacobi preconditioner uses it:
+        0 if pinned; if held on the terrain, S (S B S + N N^T)^-1 S (S = I - N N^T: the constrained
+        block, kept invertible; its inverse maps the tangent plane to itself, so PCG stays there)."""
+        pinv = ti.Matrix.zero(float, 3, 3)
+        if self._free(i):
+            pinv = block.inverse()
+            if ti.static(self.terrain.has_contact):
+                if self.active[i]:
+                    nrm = self.normal[i]
+                    sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+                    pinv = sp @ (sp @ block @ sp + nrm.outer_product(nrm)).inverse() @ sp
+        return pinv
+
     # -- phase 1: begin ---------------------------------------------------------------------------
     @ti.func
     def _begin_step(self, x: ti.template(), v: ti.template(), dt):

@@ -175,7 +175,10 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
                 self._factor_solve(src, dst)
         for i in range(self.n):  # one loop for both (a loop under a run-time branch runs serially)
             if jacobi:
-                dst[i] = self._filter(i, src[i] / ti.max(self.diag[i], 1e-300))
+                # block Jacobi: A's diagonal with the particle's friction and pair blocks, which hold
+                # the stiff terms (a pair's kappa m / h^2 is ~1000x the mass term)
+                blk = self.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+                dst[i] = self._filtered_inverse(i, blk) @ src[i]
             else:
                 dst[i] = self._filter(i, dst[i])
 

@@ -48,20 +48,7 @@ class ImplicitEuler(ImplicitIntegrator):
         for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
             s = m.adj_spring[e]
             diag += self.spring_hess[code_spring(s)]
-        pinv = ti.Matrix.zero(float, 3, 3)
-        if self._free(i):
-            if ti.static(self.terrain.has_contact):
-                if self.active[i]:
-                    # S D S + N N^T: the constrained block, kept invertible; its inverse maps the
-                    # tangent plane to itself, so PCG stays in that subspace.
-                    nrm = self.normal[i]
-                    sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-                    pinv = sp @ (sp @ diag @ sp + nrm.outer_product(nrm)).inverse() @ sp
-                else:
-                    pinv = diag.inverse()
-            else:
-                pinv = diag.inverse()
-        self.precond[i] = pinv
+        self.precond[i] = self._filtered_inverse(i, diag)
 
     # PCG operator: the filtered Hessian H = M + h^2 K_psd + h D + friction, applied per particle by
     # gathering its springs' blocks (no atomics, no assembled matrix).
