@@ -110,13 +110,13 @@ def render_run(scene: str, integrator: str, dt: float, duration, resolution, set
     """Render one run to an MP4; return its bytes, frame count, run summary and energy per frame."""
     from . import runtime
     from .render import overlay
-    from .render.compare import solver_options
     from .render.recorder import FrameRecorder, RenderOptions
+    from .sim.integrators import scene_options
     from .sim.simulation import Simulation
 
     runtime.init("cpu", "f64")
     sc = _load(scene, sets, dt, duration, resolution)
-    sim = Simulation(sc, integrator=integrator, options=solver_options(sc, integrator))
+    sim = Simulation(sc, integrator=integrator, options=scene_options(integrator, sc.data))
     fps = sc.data["render"]["fps"]
     energy = []
     with tempfile.TemporaryDirectory(prefix="taichi-soft-gallery-") as tmp:

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..sim.grab import attach as attach_grab
-from ..sim.integrators import REGISTRY, integrator_class, make_integrator
+from ..sim.integrators import REGISTRY, make_integrator, scene_options
 from ..sim.lattice import SPRING_KINDS, rotation_matrix
 from ..sim.scene import load_scene
 from ..sim.simulation import Simulation
@@ -90,7 +90,7 @@ class DemoController(LiveParameters, HandControls):
         s = self.settings
         # The window places the body itself (height, rotation: set_pose), so the scene's own start
         # is not checked against the terrain here.
-        sim = Simulation(scene, integrator=s.integrator, dt=s.dt, options=self._options(s.integrator, scene),
+        sim = Simulation(scene, integrator=s.integrator, dt=s.dt, options=scene_options(s.integrator, scene.data),
                          check=False)
         self.grab = attach_grab(sim.model)  # before any step compiles: the steps include its force
         self.sim = sim
@@ -100,11 +100,6 @@ class DemoController(LiveParameters, HandControls):
         self.generation += 1
         self._apply_live_settings()
         self.reset()
-
-    @staticmethod
-    def _options(name: str, scene) -> dict:
-        """The scene's ``[solver]`` options that integrator ``name`` understands."""
-        return integrator_class(name).Config.accepted(scene.data.get("solver", {}))  # UserError if unknown
 
     def _apply_live_settings(self):
         s = self.settings
@@ -132,7 +127,7 @@ class DemoController(LiveParameters, HandControls):
             return
         integ = self._integrators.get(name)
         if integ is None:
-            integ = make_integrator(name, self.sim.model, self.sim.terrain, self._options(name, self.sim.scene),
+            integ = make_integrator(name, self.sim.model, self.sim.terrain, scene_options(name, self.sim.scene.data),
                                     self.sim.contacts)
             self._integrators[name] = integ
         self.sim.set_integrator(integ)

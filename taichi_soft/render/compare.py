@@ -35,13 +35,6 @@ def grid_shape(n: int, width: int, height: int) -> tuple[int, int]:
     return best
 
 
-def solver_options(scene, integrator: str) -> dict:
-    """The scene's ``[solver]`` options that ``integrator`` understands (the others are for other methods)."""
-    from ..sim.integrators import REGISTRY
-
-    return REGISTRY[integrator].Config.accepted(scene.data.get("solver", {}))
-
-
 @dataclass
 class Tile:
     """One integrator's simulation and what its tile shows."""
@@ -75,6 +68,7 @@ class Comparison(FrameJob):
     """
 
     def __init__(self, scene, integrators: list[str], options, dt: float | None = None):
+        from ..sim.integrators import scene_options
         from ..sim.simulation import Simulation
         from .camera import scene_camera
         from .choose import make_renderer
@@ -89,7 +83,7 @@ class Comparison(FrameJob):
         try:
             self.tiles = []
             for name in integrators:
-                sim = Simulation(scene, integrator=name, dt=dt, options=solver_options(scene, name))
+                sim = Simulation(scene, integrator=name, dt=dt, options=scene_options(name, scene.data))
                 self.tiles.append(Tile(name, sim, SimulationView(sim, options.surface, options.particles, options.springs)))
             self.dt = self.tiles[0].sim.dt
             self.camera = scene_camera(scene.data, self.tile_w / self.tile_h, options.follow)

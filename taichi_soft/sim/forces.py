@@ -161,43 +161,43 @@ class ForceEvaluator:
     def _has_rows(self) -> bool:
         return self.rows is not None
 
-    def _row_copies(self) -> bool:
-        """Whether the gather's rows hold (k, kd) copies for ``refresh`` to keep (else: group lookups)."""
+    def _row_copies(self) -> bool:  # the gather's rows hold (k, kd) copies (else: group lookups)
         return self._has_rows() and self.rows.copies
+
+    def _keeps_copies(self) -> bool:  # (k, kd) copies per spring or per slot of the rows, for refresh
+        return self.kkd is not None or self._row_copies()
 
     # -- parameter copies ----------------------------------------------------------------------
     @ti.func
     def refresh(self):
         """Copy the groups' stiffness and damping into the per-spring (or per-slot) copies if they
-        changed since the last copy (also when written straight into the fields).
-
-        Called at the top level of every step kernel, before its steps: a serial comparison of the
-        few groups, then a serial copy loop of zero iterations unless something changed. It used
-        to run from Python before each ``advance`` (downloading both fields: two parallel launches,
-        most of the ``run`` path's per-frame cost at n = 10; docs/benchmarks/README.md, issue 25).
-        """
-        m = self.model
-        ti.loop_config(serialize=True)
-        for g in range(m.n_groups):
-            kkd = ti.Vector([m.group_k[g], m.group_kd[g]])
-            if kkd[0] != self._seen[g][0] or kkd[1] != self._seen[g][1] or self._copied[None] == 0:
-                self._changed[None] = 1
-                self._seen[g] = kkd
-        self._copied[None] = 1
-        # Serial even in parallel launches: an empty parallel loop still costs a thread-pool round
-        # trip every step, and a change (a slider move) is rare; copying then takes a few ms.
-        if ti.static(self._row_copies()):
-            rows = self.rows
+        changed since the last copy (also when written straight into the fields). At the top of
+        every step kernel: a serial comparison of the few groups, then a copy loop of zero
+        iterations unless something changed (from Python before each ``advance`` it downloaded both
+        fields, most of the ``run`` path's per-frame cost at n = 10; docs/benchmarks, issue 25)."""
+        if ti.static(self._keeps_copies()):  # f64 rows read the groups themselves: nothing to keep
+            m = self.model
             ti.loop_config(serialize=True)
-            for e in range(self._changed[None] * m.n_particles * rows.width):
-                g = rows.group[e]
-                rows.kkd[e] = ti.Vector([m.group_k[g], m.group_kd[g]])  # padding: zero force anyway
-        elif ti.static(not self._has_rows()):
-            ti.loop_config(serialize=True)
-            for s in range(self._changed[None] * m.n_springs):
-                g = m.spring_group[s]
-                self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])
-        self._changed[None] = 0
+            for g in range(m.n_groups):
+                kkd = ti.Vector([m.group_k[g], m.group_kd[g]])
+                if kkd[0] != self._seen[g][0] or kkd[1] != self._seen[g][1] or self._copied[None] == 0:
+                    self._changed[None] = 1
+                    self._seen[g] = kkd
+            self._copied[None] = 1
+            # Serial even in parallel launches: an empty parallel loop still costs a thread-pool round
+            # trip every step, and a change (a slider move) is rare; copying then takes a few ms.
+            if ti.static(self._row_copies()):
+                rows = self.rows
+                ti.loop_config(serialize=True)
+                for e in range(self._changed[None] * m.n_particles * rows.width):
+                    g = rows.group[e]
+                    rows.kkd[e] = ti.Vector([m.group_k[g], m.group_kd[g]])  # padding: zero force anyway
+            else:  # per-spring copies
+                ti.loop_config(serialize=True)
+                for s in range(self._changed[None] * m.n_springs):
+                    g = m.spring_group[s]
+                    self.kkd[s] = ti.Vector([m.group_k[g], m.group_kd[g]])
+            self._changed[None] = 0
 
     # -- step-kernel pieces ---------------------------------------------------------------------
     @ti.func

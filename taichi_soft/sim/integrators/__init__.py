@@ -6,7 +6,7 @@ from . import explicit  # noqa: F401  registers the explicit family
 from . import implicit  # noqa: F401  registers implicit_euler, fast_mass_spring
 from .base import REGISTRY, Integrator, register
 
-__all__ = ["REGISTRY", "Integrator", "register", "make_integrator", "integrator_class", "names"]
+__all__ = ["REGISTRY", "Integrator", "register", "make_integrator", "integrator_class", "names", "scene_options"]
 
 
 def names() -> list[str]:
@@ -21,6 +21,12 @@ def integrator_class(name: str) -> type:
         return REGISTRY[name]
     except KeyError:
         raise UserError(f"unknown integrator {name!r}; choose one of: {', '.join(REGISTRY)}") from None
+
+
+def scene_options(name: str, scene_data: dict) -> dict:
+    """The entries of a scene's ``[solver]`` table that integrator ``name`` has (a scene may carry
+    options of other integrators, for ``compare``); unknown names raise ``UserError``."""
+    return integrator_class(name).Config.accepted(scene_data.get("solver", {}))
 
 
 def make_integrator(name: str, model, terrain, options: dict | None = None, contacts=None) -> Integrator:

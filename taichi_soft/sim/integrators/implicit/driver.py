@@ -156,12 +156,15 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         block, kept invertible; its inverse maps the tangent plane to itself, so PCG stays there)."""
         pinv = ti.Matrix.zero(float, 3, 3)
         if self._free(i):
-            pinv = block.inverse()
+            held = 0
             if ti.static(self.terrain.has_contact):
-                if self.active[i]:
-                    nrm = self.normal[i]
-                    sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-                    pinv = sp @ (sp @ block @ sp + nrm.outer_product(nrm)).inverse() @ sp
+                held = self.active[i]
+            if held:
+                nrm = self.normal[i]
+                sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+                pinv = sp @ (sp @ block @ sp + nrm.outer_product(nrm)).inverse() @ sp
+            else:
+                pinv = block.inverse()
         return pinv
 
     # -- phase 1: begin ---------------------------------------------------------------------------
