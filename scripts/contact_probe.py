@@ -19,7 +19,6 @@ import taichi as ti  # noqa: E402
 from taichi_soft.bench.plausibility import slide_distance  # noqa: E402
 from taichi_soft.bench.precision import ENSEMBLE  # noqa: E402
 from taichi_soft.sim.integrators import names  # noqa: E402
-from taichi_soft.sim.integrators.implicit import slots as S  # noqa: E402
 from taichi_soft.sim.scene import load_scene  # noqa: E402
 from taichi_soft.sim.simulation import Simulation  # noqa: E402
 
@@ -70,7 +69,7 @@ def one(name, scene, sets, t_end, solver, opts, scale, dt):
         wall = time.perf_counter() - t0
         st = integ.stats()
         hist = integ.residual_history()
-        contact = float(integ.sc[S.N_ACTIVE]) > 0
+        contact = float(integ.sc.n_active[None]) > 0
         if contact and first_contact is None:
             first_contact = k
         its = st[it_key]

@@ -8,7 +8,6 @@ evaluate at ``state.x`` for that step, with no particle held and no friction.
 import numpy as np
 import taichi as ti
 
-from taichi_soft.sim.integrators.implicit import slots as S
 
 
 @ti.kernel
@@ -29,7 +28,7 @@ def _no_contacts(integ: ti.template()):
 def _trial_at(integ: ti.template(), x: ti.template(), dt: float, alpha: float):
     for i in range(integ.n):
         integ.dx[i] = ti.Vector.zero(float, 3)
-    integ.sc[S.ALPHA] = alpha
+    integ.sc.alpha[None] = alpha
     integ._trial(x, dt)
 
 
@@ -49,7 +48,7 @@ def objective(integ, state, dt: float) -> float:
     """g(state.x) [kg m^2] for the step begun last."""
     _displace(integ, state.x)
     _trial_at(integ, state.x, dt, 0.0)
-    return float(integ.sc[S.F_TRIAL])
+    return float(integ.sc.f_trial[None])
 
 
 def gradient(integ, state, dt: float) -> np.ndarray:

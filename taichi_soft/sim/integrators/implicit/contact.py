@@ -29,7 +29,6 @@ per-particle ti.func called from the phases of the step (docs/implicit.md, "Cont
 
 import taichi as ti
 
-from . import slots as S
 
 
 @ti.data_oriented
@@ -55,7 +54,7 @@ class ContactSet:
     @ti.func
     def _start_direction(self, i, xi, d, dt):
         """Direction of particle i's start move (predicted move ``d`` = y - x_n, [m]); holds it if it
-        sits on the surface and the predictor points inward; lowers T_MAX to its crossing fraction.
+        sits on the surface and the predictor points inward; lowers ``sc.t_max`` to its crossing fraction.
 
         A particle held from the start that was held at the end of the previous step starts with the
         previous step's normal force as its friction multiplier (warm start): the first gradient, at
@@ -63,8 +62,8 @@ class ContactSet:
         layer by h^2 g), and refreezing from there cost iterations and friction (docs/implicit.md).
         The previous step's force, h_prev^2 |F_n| (``lam_end``), is rescaled to this step's h^2."""
         warm = ti.cast(0.0, float)
-        if self.sc[S.H2_PREV] > 0:
-            warm = self.lam_end[i] * (dt * dt / self.sc[S.H2_PREV])
+        if self.sc.h2_prev[None] > 0:
+            warm = self.lam_end[i] * (dt * dt / self.sc.h2_prev[None])
         self.active[i] = 0
         self.released[i] = 0
         self.lam[i] = 0.0
@@ -82,7 +81,7 @@ class ContactSet:
             else:
                 dist_y, _n = self.terrain.query(i, xi + d)
                 if dist_y < 0:
-                    ti.atomic_min(self.sc[S.T_MAX], dist / (dist - dist_y))
+                    ti.atomic_min(self.sc.t_max[None], dist / (dist - dist_y))
         return d
 
     @ti.func
@@ -90,7 +89,7 @@ class ContactSet:
         """Active set and friction for particle i at xi with (frictionless) gradient gi [kg m].
 
         Releases a clearly pulling held particle, refreezes its multiplier when the driver asked for
-        it (``ctl[UPDATE]``) or when it has none yet (held since the last freeze: it gets its first
+        it (``sc.update``) or when it has none yet (held since the last freeze: it gets its first
         multiplier at its first gradient), corrects the objective for any change of the friction
         weight (the term is linear in lam), and returns gi plus the friction gradient.
         """
@@ -104,7 +103,7 @@ class ContactSet:
             # The margin grows with each release in this step (hysteresis against chatter); a
             # pulling particle is never kept held, or its neighbours' multipliers, and with them
             # friction, would carry more than the body's real load.
-            margin = m.mass[i] * dt * dt * ti.max(self.release_tol[None], self.sc[S.RES_PREV]) \
+            margin = m.mass[i] * dt * dt * ti.max(self.release_tol[None], self.sc.res_prev[None]) \
                 * (1.0 + 3.0 * self.released[i])
             if c < -margin:
                 self.active[i] = 0
@@ -113,16 +112,16 @@ class ContactSet:
             else:
                 cand = ti.max(c, 0.0)
                 end = cand
-                if self.ctl[S.UPDATE] or lam_old == 0:
+                if self.sc.update[None] or lam_old == 0:
                     lam_new = cand
-                self.sc[S.LAM_CHANGE] += ti.abs(cand - lam_new)
-                self.sc[S.LAM_SUM] += cand
+                self.sc.lam_change[None] += ti.abs(cand - lam_new)
+                self.sc.lam_sum[None] += cand
         else:
             lam_new = 0.0
         fh = ti.Matrix.zero(float, 3, 3)
         if lam_new != lam_old or lam_new > 0:
             f0, fg, fh1 = self._friction(i, xi, nrm, 1.0)
-            self.sc[S.F_CUR] += (lam_new - lam_old) * f0
+            self.sc.f_cur[None] += (lam_new - lam_old) * f0
             gi += lam_new * fg
             fh = lam_new * fh1
         self.lam[i] = lam_new
@@ -194,13 +193,13 @@ class ContactSet:
     @ti.func
     def _bounce_scale(self, budget):
         """Largest s in [0, 1] with sum 1/2 m |v + s dv|^2 - 1/2 m |v|^2 = A s^2 + B s <= budget [J]."""
-        a = self.sc[S.BOUNCE_A]
-        b = self.sc[S.BOUNCE_B]
+        a = self.sc.bounce_a[None]
+        b = self.sc.bounce_b[None]
         s = ti.cast(1.0, float)
         if a > 0 and a + b > budget:
             disc = b * b + 4.0 * a * budget
             s = 0.0
             if disc >= 0:
                 s = ti.min(1.0, ti.max(0.0, (-b + ti.sqrt(disc)) / (2.0 * a)))
-            self.ctl[S.BOUNCE_LIMITED] = 1
+            self.sc.bounce_limited[None] = 1
         return s

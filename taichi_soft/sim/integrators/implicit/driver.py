@@ -6,7 +6,7 @@ A step (docs/implicit.md):
    direction (contact.py) and measure the energy the step begins with.
 2. Reference and feasible start: g(x_n) (a trial at alpha = 0), then a line search from x_n
    along the start direction, beginning at the largest
-   feasible fraction T_MAX, accepting the first fraction with g <= g(x_n) (at most
+   feasible fraction ``sc.t_max``, accepting the first fraction with g <= g(x_n) (at most
    ``START_HALVINGS`` halvings, else the step starts at x_n).
 3. Iterations: gradient (and the linear operator's data) -> decision (converged? refreeze friction?) -> direction (the subclass:
    Newton + PCG, or the prefactored local/global matrix) -> Armijo backtracking -> accept.
@@ -14,8 +14,9 @@ A step (docs/implicit.md):
    (``Terrain.respond``, divergence check), and, as a counted last resort, the energy clamp.
 
 Every decision (convergence tests, Armijo, the forcing term, recording) is a ti.func writing
-``ctl``/``sc``. The sequence of phases is written once (walk.py): the serial driver runs it inside
-the one-launch kernel of many steps, the parallel driver from Python scope, one launch per phase.
+the step's scalars (``sc``: scalars.py). The sequence of phases is written once (walk.py): the
+serial driver runs it inside the one-launch kernel of many steps, the parallel driver from Python
+scope, one launch per phase.
 Phase 4 is ``step_end.py``; the step's counters ``accounts.py``.
 """
 
@@ -25,13 +26,13 @@ import taichi as ti
 from ...footprint import ADJACENCY, FieldCounts
 from ...model import CHANGED_MASSES
 from ..base import Integrator
-from . import slots as S
 from .accounts import StepAccounts
 from .contact import ContactSet
 from .objective import Objective
 from .options import ImplicitConfig
 from .pairs import PairContacts
 from .restitution import SpreadBounce
+from .scalars import RES_HISTORY, START_HALVINGS, STEP_ACCOUNTS, accounts, counters, step_scalars
 from .scheme import StepScheme
 from .step_end import StepEnd
 from .walk import CG_DIRECTION, STEP, InKernel, Launches
@@ -76,10 +77,10 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         # f64 whatever the precision: its sums run over every particle (objective, residual, energies),
         # and in f32 a sum over 10^5-10^7 terms lost the line search's decrease and the energy
         # balance to round-off (a large body froze: docs/implicit.md, "Precision").
-        self.sc = ti.field(ti.f64, S.N_SC)
-        self.ctl = ti.field(ti.i32, S.N_CTL)
-        self.acc = ti.field(ti.f64, S.N_ACC)
-        self.res_history = ti.field(float, S.RES_HISTORY)  # residual [m/s^2] per gradient of the last step
+        self.sc = step_scalars()
+        self._counters = counters(self.sc)
+        self.acc = accounts(STEP_ACCOUNTS)
+        self.res_history = ti.field(float, RES_HISTORY)  # residual [m/s^2] per gradient of the last step
         self.n_history = ti.field(ti.i32, ())
         # Limits read by kernels (fields, so changing an option's value needs no recompile).
         self.max_iters = ti.field(ti.i32, ())
@@ -90,7 +91,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         self.ew_forcing = ti.field(ti.i32, ())  # 1: Eisenstat-Walker forcing term
         self.velocity_tol = ti.field(float, ())  # [m/s]
         self.clamp_on = ti.field(ti.i32, ())
-        self.tol2 = ti.field(float, ())  # tolerance on RES2 for this step's h_eff (see _begin_step)
+        self.tol2 = ti.field(float, ())  # tolerance on sc.res2 for this step's h_eff (see _begin_step)
         self.tol_acc = ti.field(float, ())  # the solver's residual tolerance [m/s^2]
         self.tol_acc[None] = o.residual_tol
         self.roundoff = ti.field(float, ())  # relative objective noise the line search ignores
@@ -175,7 +176,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         m = self.model
         self._choose_scheme(x, v, dt)
         he = self.h_eff[None]
-        self.sc[S.H2_PREV] = self.h2[None]  # the multipliers kept in lam are for this h^2
+        self.sc.h2_prev[None] = self.h2[None]  # the multipliers kept in lam are for this h^2
         self.h2[None] = he * he
         self.tol2[None] = (self.tol_acc[None] * he * he) ** 2 * self.total_mass[None]
         self.fric_eps[None] = self.friction_velocity[None] * he
@@ -189,8 +190,8 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
                 d += self.yd[a] - self.yd[b]
             length = d.norm()
             self.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
-        self.sc[S.T_MAX] = 1.0
-        self.sc[S.K_START] = 0.0
+        self.sc.t_max[None] = 1.0
+        self.sc.k_start[None] = 0.0
         for i in range(self.n):
             xi = x[i]
             self.x_prev[i] = xi
@@ -201,7 +202,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
             d = self.yd[i]
             if self._free(i):
                 mi = m.mass[i]
-                self.sc[S.K_START] += 0.5 * mi * v[i].dot(v[i])
+                self.sc.k_start[None] += 0.5 * mi * v[i].dot(v[i])
                 if ti.static(self.terrain.has_contact):
                     d = self._start_direction(i, xi, d, he)
                 self.dx[i] = d
@@ -215,10 +216,10 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
                     self.lam_end[i] = 0.0
         if ti.static(self._has_pairs()):
             self.pairs.begin(self.x_prev, self.yd, self.dx, self.u)
-        for k in ti.static(range(S.N_CTL)):
-            self.ctl[k] = 0
-        self.sc[S.RES_PREV] = 1e30  # no release before a residual is known
-        self.sc[S.STEP] = 1e30
+        for c in ti.static(self._counters):
+            c[None] = 0
+        self.sc.res_prev[None] = 1e30  # no release before a residual is known
+        self.sc.step[None] = 1e30
         self.n_history[None] = 0
         # Phase 0 evaluates the reference g(x_n) and E(x_n): one trial at alpha = 0.
         self._line_search_begin(0.0, 0)
@@ -226,36 +227,36 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     # -- decisions ----------------------------------------------------------------------------------
     @ti.func
     def _line_search_begin(self, alpha, limit):
-        self.sc[S.ALPHA] = alpha
-        self.ctl[S.LS_COUNT] = 0
-        self.ctl[S.LS_LIMIT] = limit
-        self.ctl[S.LS_DONE] = 0
-        self.ctl[S.ACCEPTED] = 0
+        self.sc.alpha[None] = alpha
+        self.sc.ls_count[None] = 0
+        self.sc.ls_limit[None] = limit
+        self.sc.ls_done[None] = 0
+        self.sc.accepted[None] = 0
 
     @ti.func
     def _line_search_decide(self):
         """Armijo (c = 1e-4, the objective's round-off tolerated) on the trial just evaluated; at the
         start grad = 0, so the test is g(x_0) <= g(x_n)."""
-        f0 = self.sc[S.F_CUR]
-        if self.ctl[S.PHASE] == 0:  # the reference point x_n itself
-            self.ctl[S.ACCEPTED] = 1
-            self.ctl[S.LS_DONE] = 1
-        elif self.sc[S.F_TRIAL] - f0 <= 1e-4 * self.sc[S.DEC] + self.roundoff[None] * ti.abs(f0):
-            self.ctl[S.ACCEPTED] = 1
-            self.ctl[S.LS_DONE] = 1
-        elif self.ctl[S.LS_COUNT] >= self.ctl[S.LS_LIMIT]:
-            self.ctl[S.LS_DONE] = 1
+        f0 = self.sc.f_cur[None]
+        if self.sc.phase[None] == 0:  # the reference point x_n itself
+            self.sc.accepted[None] = 1
+            self.sc.ls_done[None] = 1
+        elif self.sc.f_trial[None] - f0 <= 1e-4 * self.sc.dec[None] + self.roundoff[None] * ti.abs(f0):
+            self.sc.accepted[None] = 1
+            self.sc.ls_done[None] = 1
+        elif self.sc.ls_count[None] >= self.sc.ls_limit[None]:
+            self.sc.ls_done[None] = 1
         else:
-            self.sc[S.ALPHA] *= 0.5
-            self.ctl[S.LS_COUNT] += 1
-            if self.ctl[S.PHASE] == 2:
-                self.ctl[S.BACKTRACKS] += 1
+            self.sc.alpha[None] *= 0.5
+            self.sc.ls_count[None] += 1
+            if self.sc.phase[None] == 2:
+                self.sc.backtracks[None] += 1
 
     @ti.func
     def _accept(self, x: ti.template()):
         """Move to the accepted trial; an iteration whose line search failed ends the step (x and its
         gradient stay valid). A rejected start leaves the step at x_n."""
-        ok = self.ctl[S.ACCEPTED]
+        ok = self.sc.accepted[None]
         for i in range(self.n):
             if ok:
                 x[i] = self.x_trial[i]
@@ -263,56 +264,56 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
                 if ti.static(self.terrain.has_contact):
                     self.active[i] = self.trial_active[i]
                     self.normal[i] = self.trial_normal[i]
-        phase = self.ctl[S.PHASE]
+        phase = self.sc.phase[None]
         if ok:
-            self.sc[S.F_CUR] = self.sc[S.F_TRIAL]
-            self.sc[S.E_CUR] = self.sc[S.E_TRIAL]
-            self.sc[S.STEP] = self.sc[S.STEP_TRIAL]
+            self.sc.f_cur[None] = self.sc.f_trial[None]
+            self.sc.e_cur[None] = self.sc.e_trial[None]
+            self.sc.step[None] = self.sc.step_trial[None]
         elif phase == 2:
-            self.ctl[S.DONE] = 1
-            self.ctl[S.LS_FAILED] = 1  # no decrease along the direction while unconverged: counted
+            self.sc.done[None] = 1
+            self.sc.ls_failed[None] = 1  # no decrease along the direction while unconverged: counted
         if phase == 0:
             # The reference: g, spring and total energy at x_n; next, the feasible start.
             # Gravity energy is measured from x_n (0 here; -m g . u at the end): its absolute value,
             # m g y summed over the body, rounded away the balance of a step in f32.
-            self.sc[S.H_START] = self.sc[S.K_START] + self.sc[S.E_TRIAL]
-            self.sc[S.H_SCALE] = self.sc[S.K_START] + self.sc[S.E_TRIAL]
-            self._line_search_begin(self.sc[S.T_MAX], S.START_HALVINGS)
-        self.ctl[S.PHASE] = ti.min(phase + 1, 2)
+            self.sc.h_start[None] = self.sc.k_start[None] + self.sc.e_trial[None]
+            self.sc.h_scale[None] = self.sc.k_start[None] + self.sc.e_trial[None]
+            self._line_search_begin(self.sc.t_max[None], START_HALVINGS)
+        self.sc.phase[None] = ti.min(phase + 1, 2)
 
     @ti.func
     def _after_gradient(self, dt):
         """Record the residual; decide: done, refreeze friction (re-evaluate), or iterate on (and set
         the CG forcing term)."""
-        k = self.ctl[S.EVALS]
+        k = self.sc.evals[None]
         res = self._residual()
-        if k < S.RES_HISTORY:
+        if k < RES_HISTORY:
             self.res_history[k] = res
-        self.n_history[None] = ti.min(k + 1, S.RES_HISTORY)
-        self.ctl[S.EVALS] = k + 1
+        self.n_history[None] = ti.min(k + 1, RES_HISTORY)
+        self.sc.evals[None] = k + 1
         if k == 0:
-            self.sc[S.RES2_0] = self.sc[S.RES2]
-        self.sc[S.RES_PREV] = res
-        was_update = self.ctl[S.UPDATE]
-        self.ctl[S.UPDATE] = 0
-        capped = self.ctl[S.OUTER] >= self.max_iters[None]
-        small = self.ctl[S.OUTER] > 0 and was_update == 0 and self.sc[S.STEP] <= self.velocity_tol[None] * dt
-        converged = self.sc[S.RES2] <= self.tol2[None] or small
+            self.sc.res2_0[None] = self.sc.res2[None]
+        self.sc.res_prev[None] = res
+        was_update = self.sc.update[None]
+        self.sc.update[None] = 0
+        capped = self.sc.outer[None] >= self.max_iters[None]
+        small = self.sc.outer[None] > 0 and was_update == 0 and self.sc.step[None] <= self.velocity_tol[None] * dt
+        converged = self.sc.res2[None] <= self.tol2[None] or small
         # Refreeze the friction multipliers (bounded): at convergence if they moved by more than 10 %,
         # or at once if they are mostly stale -- but not at the step's first gradient, at the start
         # point (the predictor), which over-counts the load the warm-started multipliers carry. (A
         # particle held since the last freeze gets its first multiplier at its first gradient.)
-        change = self.sc[S.LAM_CHANGE]
-        stale = k > 0 and change > 0.5 * self.sc[S.LAM_SUM] + 1e-300
-        moved = change > 0.1 * self.sc[S.LAM_SUM] + 1e-300
-        if (stale or (converged and moved)) and not capped and self.ctl[S.UPDATES] < self.max_updates[None]:
-            self.ctl[S.UPDATE] = 1
-            self.ctl[S.UPDATES] += 1
+        change = self.sc.lam_change[None]
+        stale = k > 0 and change > 0.5 * self.sc.lam_sum[None] + 1e-300
+        moved = change > 0.1 * self.sc.lam_sum[None] + 1e-300
+        if (stale or (converged and moved)) and not capped and self.sc.updates[None] < self.max_updates[None]:
+            self.sc.update[None] = 1
+            self.sc.updates[None] += 1
         elif converged or capped:
-            self.ctl[S.DONE] = 1
+            self.sc.done[None] = 1
         tol = self.cg_tol[None]
         if self.ew_forcing[None]:
-            ratio = ti.sqrt(ti.sqrt(self.sc[S.RES2] / ti.max(self.sc[S.RES2_0], 1e-300)))
+            ratio = ti.sqrt(ti.sqrt(self.sc.res2[None] / ti.max(self.sc.res2_0[None], 1e-300)))
             tol = ti.min(0.5, ratio)
         self._set_cg_tol(tol)
 
@@ -322,7 +323,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
 
     @ti.func
     def _after_direction(self):
-        self.ctl[S.OUTER] += 1
+        self.sc.outer[None] += 1
         self._line_search_begin(1.0, self.ls_iters[None])
 
     # -- the drivers: one source (walk.py), run inside the serial kernel or from Python scope -----
@@ -375,7 +376,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
 
     def residual(self) -> float:
         """Residual [m/s^2] of the last gradient evaluation (see ``_residual``)."""
-        return float(np.sqrt(max(float(self.sc[S.RES2]), 0.0) / float(self.total_mass[None]))) / float(self.h2[None])
+        return float(np.sqrt(max(float(self.sc.res2[None]), 0.0) / float(self.total_mass[None]))) / float(self.h2[None])
 
     def residual_history(self) -> list[float]:
         """Residual [m/s^2] at each gradient evaluation of the last step (the first at the start)."""

@@ -6,7 +6,6 @@ two-loop recursion: ti.funcs of local_global.py) extend both executors, one line
 
 import taichi as ti
 
-from . import slots as S
 from .walk import InKernel, Launches, Walk
 
 
@@ -15,9 +14,9 @@ def _global_step(integ, ph, x):
     if ti.static(integ.factorised):
         if integ.jacobi_now[None]:
             ph.cg(integ.rhs, integ.dx)  # stiff springs (by_stiffness): Jacobi PCG, as pcg
-        elif integ.sc[S.N_ACTIVE] == 0:
+        elif integ.sc.n_active[None] == 0:
             ph.factor_solve(integ.rhs, integ.dx)  # nothing held: the factorisation is exact
-        elif ti.static(integ.scaled_contact) and integ.sc[S.N_PAIRS] == 0 and integ.scaled_now[None]:
+        elif ti.static(integ.scaled_contact) and integ.sc.n_pairs[None] == 0 and integ.scaled_now[None]:
             # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry the
             # stiff pair penalty, and local/global then stalled at the velocity test)
             ph.scaled_direction()
@@ -37,8 +36,8 @@ def _lbfgs_direction(integ, ph, x):
     if ti.static(integ.history):
         ph.lbfgs_pair(x)
         for attempt in range(2):
-            if attempt == 0 or integ.ctl[S.LB_RETRY]:
-                count = integ.ctl[S.LB_COUNT]  # 0: the global step alone
+            if attempt == 0 or integ.sc.lb_retry[None]:
+                count = integ.sc.lb_count[None]  # 0: the global step alone
                 for j in range(count):
                     ph.lbfgs_first(j)
                 ph.walk(GLOBAL_STEP, x)

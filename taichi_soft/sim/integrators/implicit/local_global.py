@@ -19,7 +19,6 @@ import taichi as ti
 from ...footprint import Buffers, FieldCounts
 from ...linalg import PCG
 from ..base import MB, model_counts, register, running_target
-from . import slots as S
 from .driver import ImplicitIntegrator
 from .laplacian import LaplacianMatrix
 from .lbfgs_walk import LBFGS_DIRECTION, LocalGlobalInKernel, LocalGlobalLaunches
@@ -163,7 +162,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         if ti.static(self.factorised):
             out = self.jacobi_now[None]
             if ti.static(self._has_pairs()):
-                if self.sc[S.N_PAIRS] > 0:
+                if self.sc.n_pairs[None] > 0:
                     out = 1
         return out
 
@@ -240,12 +239,12 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     def _lbfgs_pair(self, x: ti.template()):
         """Complete the pair of the update accepted since the last direction, if it can be kept;
         save x and rhs for the next pair (nothing to do while particles are held)."""
-        c = ti.static(self.ctl)
+        c = ti.static(self.sc)
         mh = ti.static(self.history)
-        head = c[S.LB_HEAD]
-        held = ti.cast(self.sc[S.N_ACTIVE] > 0, ti.i32)
+        head = c.lb_head[None]
+        held = ti.cast(c.n_active[None] > 0, ti.i32)
         # a pair needs an update since the last direction, with nothing held and the same objective
-        keep = c[S.OUTER] > 0 and not held and not c[S.LB_HELD] and c[S.LB_UPDATES] == c[S.UPDATES]
+        keep = c.outer[None] > 0 and not held and not c.lb_held[None] and c.lb_updates[None] == c.updates[None]
         self.lb_dot[None] = 0.0
         for i in range(self.n):
             if keep:
@@ -258,22 +257,22 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
                 self.lb_x[i] = self.u[i]
                 self.lb_r[i] = self.rhs[i]
         if not keep:
-            c[S.LB_COUNT] = 0
+            c.lb_count[None] = 0
         elif self.lb_dot[None] > 0:
             self.lb_rho[head] = 1.0 / self.lb_dot[None]
-            c[S.LB_HEAD] = (head + 1) % mh
-            c[S.LB_COUNT] = ti.min(c[S.LB_COUNT] + 1, mh)
+            c.lb_head[None] = (head + 1) % mh
+            c.lb_count[None] = ti.min(c.lb_count[None] + 1, mh)
         else:
-            c[S.LB_COUNT] = ti.min(c[S.LB_COUNT], mh - 1)  # the slot just written held the oldest pair
-        c[S.LB_UPDATES] = c[S.UPDATES]
-        c[S.LB_HELD] = held
-        c[S.LB_RETRY] = 0
+            c.lb_count[None] = ti.min(c.lb_count[None], mh - 1)  # the slot just written held the oldest pair
+        c.lb_updates[None] = c.updates[None]
+        c.lb_held[None] = held
+        c.lb_retry[None] = 0
 
     @ti.func
     def _lbfgs_first(self, j):
         """First loop of the two-loop recursion, pair j (0: newest), on rhs in place."""
         mh = ti.static(self.history)
-        slot = (self.ctl[S.LB_HEAD] - 1 - j + mh) % mh
+        slot = (self.sc.lb_head[None] - 1 - j + mh) % mh
         self.lb_dot[None] = 0.0
         for i in range(self.n):
             self.lb_dot[None] += self.lb_s[i, slot].dot(self.rhs[i])
@@ -286,7 +285,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     def _lbfgs_second(self, j):
         """Second loop, pair j (0: oldest), on dx in place."""
         mh = ti.static(self.history)
-        slot = (self.ctl[S.LB_HEAD] - self.ctl[S.LB_COUNT] + j + mh) % mh
+        slot = (self.sc.lb_head[None] - self.sc.lb_count[None] + j + mh) % mh
         self.lb_dot[None] = 0.0
         for i in range(self.n):
             self.lb_dot[None] += self.lb_y[i, slot].dot(self.dx[i])
@@ -298,16 +297,16 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     def _lbfgs_finish(self):
         """After a recursion over pairs: restore rhs; keep dx in the constrained subspace; no
         descent: drop the pairs and retry with the global step alone."""
-        c = ti.static(self.ctl)
+        c = ti.static(self.sc)
         self.lb_dot[None] = 0.0
         for i in range(self.n):
             self.rhs[i] = self.lb_r[i]
             self.dx[i] = self._filter(i, self.dx[i])
             self.lb_dot[None] += self.rhs[i].dot(self.dx[i])
         if self.lb_dot[None] <= 0:
-            c[S.LB_RETRY] = 1
-            c[S.LB_COUNT] = 0
-            c[S.LB_RESTARTS] += 1
+            c.lb_retry[None] = 1
+            c.lb_count[None] = 0
+            c.lb_restarts[None] += 1
 
     @ti.func
     def _set_cg_tol(self, tol):
@@ -319,16 +318,16 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         solver and how often the matrix was factorised so far; restitution-limited and
         energy-clamped step counts."""
         a = self._take_stats()
-        steps = max(a[S.A_STEPS], 1.0)
+        steps = max(a["steps"], 1.0)
         return {
-            "steps": int(a[S.A_STEPS]),
-            "local_global_iterations_per_step": a[S.A_OUTER] / steps,
-            "cg_iterations_per_step": a[S.A_CG] / steps,
-            "line_search_halvings_per_step": a[S.A_LS] / steps,
-            "final_residual_m_s2": a[S.A_RES] / steps,
+            "steps": int(a["steps"]),
+            "local_global_iterations_per_step": a["outer"] / steps,
+            "cg_iterations_per_step": a["cg"] / steps,
+            "line_search_halvings_per_step": a["ls"] / steps,
+            "final_residual_m_s2": a["res"] / steps,
             "global_solver": self.global_solver,
             "jacobi_pcg_now": bool(self.jacobi_now[None]),
             "factorizations": self.factorizations,
-            "lbfgs_restarts_per_step": a[S.A_LB_RESTARTS] / steps,
+            "lbfgs_restarts_per_step": a["lb_restarts"] / steps,
             **self._contact_stats(a, steps),
         }

@@ -14,7 +14,6 @@ from ...linalg import PCG
 from ...model import code_spring
 from ..base import MB, register
 from .options import NewtonConfig
-from . import slots as S
 from .driver import ImplicitIntegrator
 
 
@@ -74,13 +73,13 @@ class ImplicitEuler(ImplicitIntegrator):
         halvings, friction refreezes, the final residual [m/s^2] (see ``_residual``); counts of steps
         whose restitution was limited to the energy the step lost, and of energy-clamped steps."""
         a = self._take_stats()
-        steps = max(a[S.A_STEPS], 1.0)
+        steps = max(a["steps"], 1.0)
         return {
-            "steps": int(a[S.A_STEPS]),
-            "newton_iterations_per_step": a[S.A_OUTER] / steps,
-            "cg_iterations_per_step": a[S.A_CG] / steps,
-            "cg_iterations_per_newton": a[S.A_CG] / max(a[S.A_OUTER], 1.0),
-            "line_search_halvings_per_step": a[S.A_LS] / steps,
-            "final_residual_m_s2": a[S.A_RES] / steps,
+            "steps": int(a["steps"]),
+            "newton_iterations_per_step": a["outer"] / steps,
+            "cg_iterations_per_step": a["cg"] / steps,
+            "cg_iterations_per_newton": a["cg"] / max(a["outer"], 1.0),
+            "line_search_halvings_per_step": a["ls"] / steps,
+            "final_residual_m_s2": a["res"] / steps,
             **self._contact_stats(a, steps),
         }

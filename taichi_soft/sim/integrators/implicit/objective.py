@@ -21,7 +21,7 @@ import taichi as ti
 
 from ...forces import spring_energy, spring_energy_derivatives
 from ...model import code_spring, end_b_spring, is_end_a
-from . import slots as S
+from .scalars import RES_HISTORY
 
 
 
@@ -117,7 +117,7 @@ class Objective:
 
     @ti.func
     def _gradient(self, x: ti.template(), dt):
-        """grad g(x), the filtered residual ``rhs`` and its norm (``RES2``), from one pass over springs
+        """grad g(x), the filtered residual ``rhs`` and its norm (``sc.res2``), from one pass over springs
         and one gather per particle. The contact active set (hold, release, multipliers) is updated
         per particle by ``_contact_gradient`` (contact.py). The same passes store what the solver's
         linear operator needs (``_store_spring_hessian``, ``_store_preconditioner``): one pass
@@ -127,11 +127,11 @@ class Objective:
             g, hs = self._spring_terms(x, s, dt)
             self.spring_grad[s] = g
             self._store_spring_hessian(s, hs)
-        self.sc[S.RES2] = 0.0
-        self.sc[S.N_ACTIVE] = 0.0
-        self.sc[S.N_PAIRS] = 0.0
-        self.sc[S.LAM_CHANGE] = 0.0
-        self.sc[S.LAM_SUM] = 0.0
+        self.sc.res2[None] = 0.0
+        self.sc.n_active[None] = 0.0
+        self.sc.n_pairs[None] = 0.0
+        self.sc.lam_change[None] = 0.0
+        self.sc.lam_sum[None] = 0.0
         if ti.static(self._has_pairs()):
             self.pairs.gradient(x, self.u)  # body-body contact (pairs.py)
         for i in range(self.n):
@@ -160,24 +160,24 @@ class Objective:
                 if ti.static(self.terrain.has_contact):
                     if self.active[i]:
                         r -= self.normal[i].dot(r) * self.normal[i]
-                        self.sc[S.N_ACTIVE] += 1.0
+                        self.sc.n_active[None] += 1.0
             else:
                 gi = ti.Vector.zero(float, 3)
             self.grad[i] = gi
             self.rhs[i] = r
-            self.sc[S.RES2] += r.dot(r) * m.inv_mass[i]
+            self.sc.res2[None] += r.dot(r) * m.inv_mass[i]
             self._store_preconditioner(i)
 
     @ti.func
     def _trial(self, x: ti.template(), dt):
-        """x_trial = x + alpha dx (alpha = sc[ALPHA]) made feasible (``_project``, contact.py); the
-        objective there (``F_TRIAL``), its spring energy, grad . (x_trial - x) and the largest move."""
+        """x_trial = x + alpha dx (alpha = ``sc.alpha``) made feasible (``_project``, contact.py); the
+        objective there (``sc.f_trial``), its spring energy, grad . (x_trial - x) and the largest move."""
         m = self.model
-        alpha = self.sc[S.ALPHA]
-        self.sc[S.F_TRIAL] = 0.0
-        self.sc[S.DEC] = 0.0
-        self.sc[S.E_TRIAL] = 0.0
-        self.sc[S.STEP_TRIAL] = 0.0
+        alpha = self.sc.alpha[None]
+        self.sc.f_trial[None] = 0.0
+        self.sc.dec[None] = 0.0
+        self.sc.e_trial[None] = 0.0
+        self.sc.step_trial[None] = 0.0
         if ti.static(self._has_pairs()):
             self.pairs.trial_begin()
         for i in range(self.n):
@@ -194,26 +194,26 @@ class Objective:
                 if ti.static(self._has_pairs()):
                     self.pairs.track(i, ui)  # the trust region
                 diff = ui - self.yd[i]
-                self.sc[S.F_TRIAL] += 0.5 * m.mass[i] * diff.dot(diff)
+                self.sc.f_trial[None] += 0.5 * m.mass[i] * diff.dot(diff)
                 if ti.static(self.model.has_grab()):
                     gv, _gg, _gh = m.grab.step_terms(i, xi, self.x_prev[i], dt)
-                    self.sc[S.F_TRIAL] += gv
-                    self.sc[S.E_TRIAL] += m.grab.energy(i, xi)  # counted with the springs' energy
+                    self.sc.f_trial[None] += gv
+                    self.sc.e_trial[None] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
                     if self.lam[i] > 0:  # held when lam was frozen, hence held here too
                         fe, _fg, _fh = self._friction(i, xi, self.trial_normal[i], self.lam[i])
-                        self.sc[S.F_TRIAL] += fe
+                        self.sc.f_trial[None] += fe
             move = xi - x[i]
-            self.sc[S.DEC] += self.grad[i].dot(move)
-            ti.atomic_max(self.sc[S.STEP_TRIAL], move.norm())
+            self.sc.dec[None] += self.grad[i].dot(move)
+            ti.atomic_max(self.sc.step_trial[None], move.norm())
         for s in range(m.n_springs):
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             grp = m.spring_group[s]
             u = (self.u_trial[a] - self.u_base[a]) - (self.u_trial[b] - self.u_base[b])
             lu = self.spring_dir[s].dot(u)
             es = spring_energy(m, self.x_trial, a, b, m.spring_rest[s], grp)
-            self.sc[S.E_TRIAL] += es
-            self.sc[S.F_TRIAL] += dt * dt * es + 0.5 * dt * m.group_kd[grp] * lu * lu
+            self.sc.e_trial[None] += es
+            self.sc.f_trial[None] += dt * dt * es + 0.5 * dt * m.group_kd[grp] * lu * lu
         if ti.static(self._has_pairs()):
             self.pairs.trial_end(self.x_trial, self.u_trial, dt)
 
@@ -239,18 +239,18 @@ class Objective:
                 x[i] = self.x_prev[i] + self.u[i]
             # The last gradient's residual, moved with the iterate (so the reported residual is the
             # returned state's): springs, dampers and pairs sum to zero over the bodies, so
-            # sum_i g_i = -M c, and sum_i |g_i + m_i c|^2 / m_i = RES2 - M |c|^2 exactly.
-            self.sc[S.RES2] = ti.max(self.sc[S.RES2] - self.total_mass[None] * c.dot(c), 0.0)
+            # sum_i g_i = -M c, and sum_i |g_i + m_i c|^2 / m_i = res2 - M |c|^2 exactly.
+            self.sc.res2[None] = ti.max(self.sc.res2[None] - self.total_mass[None] * c.dot(c), 0.0)
             res = self._residual()
-            k = self.ctl[S.EVALS] - 1
-            if 0 <= k and k < S.RES_HISTORY:
+            k = self.sc.evals[None] - 1
+            if 0 <= k and k < RES_HISTORY:
                 self.res_history[k] = res
-            self.sc[S.RES_PREV] = res
+            self.sc.res_prev[None] = res
 
     @ti.func
     def _grab_gradient(self, i, xi, gi, dt):
         """gi plus the grab's gradient (grab.py); its Hessian goes with the friction block. While
-        particle i is grabbed it counts in ``N_ACTIVE`` unless the solver's matrix carries the grab
+        particle i is grabbed it counts in ``sc.n_active`` unless the solver's matrix carries the grab
         (``_grab_factored``): a matrix that lacks the grab's diagonal term takes the held-particle
         path (the factor as a preconditioner), as for a particle held by friction."""
         _gv, gg, gh = self.model.grab.step_terms(i, xi, self.x_prev[i], dt)
@@ -259,7 +259,7 @@ class Objective:
             fh = self.fric_hess[i]  # this gradient's friction and pair blocks (written just before)
         self.fric_hess[i] = fh + gh * ti.Matrix.identity(float, 3)
         if gh > 0 and not self._grab_factored(i):
-            self.sc[S.N_ACTIVE] += 1.0
+            self.sc.n_active[None] += 1.0
         return gi + gg
 
     @ti.func
@@ -273,4 +273,4 @@ class Objective:
         """Residual [m/s^2]: sqrt(sum_i |r_i|^2 / m_i / sum_i m_i) / h^2, the mass-weighted RMS of
         the unbalanced force per unit mass (r: the gradient with held particles' normal
         components removed, the KKT residual). An acceleration means the same at every step size."""
-        return ti.sqrt(ti.max(self.sc[S.RES2], 0.0) / self.total_mass[None]) / self.h2[None]
+        return ti.sqrt(ti.max(self.sc.res2[None], 0.0) / self.total_mass[None]) / self.h2[None]

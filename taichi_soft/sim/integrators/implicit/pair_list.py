@@ -34,9 +34,6 @@ from ...collision import BodyGrid, table_size
 # (docs/benchmarks/ENERGY.md).
 PAIRS_PER_PARTICLE = 12
 RHO = 0.25  # tube radius, in units of the largest contact distance R_max
-# stats accumulators (f64)
-P_CONTACT, P_REMOVED, P_DEEPEST, P_OVERFLOW, P_TRUST, P_PAIRS, P_BOUNCES, P_GATHERS, P_MOST = range(9)
-N_PACC = 9
 
 
 def field_bytes(n_particles: int, real_bytes: int) -> int:
@@ -165,7 +162,7 @@ class PairList(BodyGrid):
                 if self.keep_pb[k] == j:
                     self.lam[p] = self.keep_lam[k]
                     self.fnormal[p] = self.keep_normal[k]
-        self.acc[P_GATHERS] += 1.0
+        self.acc.gathers[None] += 1.0
 
     # -- the list -------------------------------------------------------------------------------
     @ti.func
@@ -201,7 +198,7 @@ class PairList(BodyGrid):
         for i in range(self.n):
             if self.near[i]:
                 self._find(i, rho)
-        ti.atomic_max(self.acc[P_MOST], ti.cast(self.n_pairs[None], ti.f64))
+        ti.atomic_max(self.acc.most[None], ti.cast(self.n_pairs[None], ti.f64))
         self.n_pairs[None] = ti.min(self.n_pairs[None], self.capacity)
 
     @ti.func
@@ -234,7 +231,7 @@ class PairList(BodyGrid):
                             self.pa[p] = i
                             self.pb[p] = j
                         else:
-                            ti.atomic_add(self.acc[P_OVERFLOW], 1.0)
+                            ti.atomic_add(self.acc.overflow[None], 1.0)
 
 
 @ti.func

@@ -21,7 +21,7 @@ different bodies overlaps by o = R_ij - |x_i - x_j|, R_ij = r_i + r_j. Per step
   transverse part, negative under overlap, clamped to 0 as for a compressed spring).
 * **Coulomb friction between bodies**: the terrain's lagged friction (IPC) on the relative
   tangential displacement of a pair, mu lam f0(|u_t|), its multiplier lam = kappa m_ij o (h^2 |F_n|)
-  and normal frozen for the solve and refrozen with the terrain's (``ctl[UPDATE]``); a pair that
+  and normal frozen for the solve and refrozen with the terrain's (``sc.update``); a pair that
   separates is released at once. Equal and opposite like the normal force.
 * **Restitution** (``end``): a pair in contact at the end whose approach at the start was faster
   than the bounce threshold gets a relative normal velocity of restitution times its approach,
@@ -31,10 +31,9 @@ different bodies overlaps by o = R_ij - |x_i - x_j|, R_ij = r_i + r_j. Per step
 
 import taichi as ti
 
-from . import slots as S
 from .objective import lagged_friction
-from .pair_list import (N_PACC, P_BOUNCES, P_CONTACT, P_DEEPEST, P_GATHERS, P_MOST, P_OVERFLOW, P_PAIRS,
-                        P_REMOVED, P_TRUST, PAIRS_PER_PARTICLE, PairList, field_bytes)
+from .pair_list import PAIRS_PER_PARTICLE, PairList, field_bytes
+from .scalars import PAIR_ACCOUNTS, accounts, read_accounts
 
 __all__ = ["PairContacts", "PAIRS_PER_PARTICLE", "field_bytes"]
 
@@ -58,7 +57,7 @@ class PairContacts(PairList):
         self.hess = ti.Matrix.field(3, 3, float, n)  # their diagonal Hessian blocks [kg]
         self.dv = vec(n)  # restitution velocity change [m/s]
         self.touch = ti.field(ti.i32, n)  # pairs in contact at the end of the step
-        self.acc = ti.field(ti.f64, N_PACC)
+        self.acc = accounts(PAIR_ACCOUNTS)
 
     def stats(self, steps: float) -> dict:
         """Counters for the run summary since the last call: pairs in contact at the end of a step
@@ -66,18 +65,17 @@ class PairContacts(PairList):
         pairs and steps], the deepest overlap at the end of any step [m], candidate pairs per step
         and the most in one list, lists rebuilt for a search direction (per step), restitution
         bounces, list overflows and trials outside the tube (pair_list.py)."""
-        a = self.acc.to_numpy()
-        self.acc.fill(0)
+        a = read_accounts(self.acc)
         return {
-            "body_pairs_in_contact_per_step": float(a[P_CONTACT]) / steps,
-            "body_overlap_removed_m": float(a[P_REMOVED]),
-            "body_deepest_overlap_m": float(a[P_DEEPEST]),
-            "body_candidate_pairs_per_step": float(a[P_PAIRS]) / steps,
-            "body_candidate_pairs_most": int(a[P_MOST]),
-            "body_pair_lists_rebuilt_per_step": float(a[P_GATHERS]) / steps,
-            "body_bounces": int(a[P_BOUNCES]),
-            "body_pair_overflows": int(a[P_OVERFLOW]),
-            "body_trust_region_rejections": int(a[P_TRUST]),
+            "body_pairs_in_contact_per_step": a["contact"] / steps,
+            "body_overlap_removed_m": a["removed"],
+            "body_deepest_overlap_m": a["deepest"],
+            "body_candidate_pairs_per_step": a["pairs"] / steps,
+            "body_candidate_pairs_most": int(a["most"]),
+            "body_pair_lists_rebuilt_per_step": a["gathers"] / steps,
+            "body_bounces": int(a["bounces"]),
+            "body_pair_overflows": int(a["overflow"]),
+            "body_trust_region_rejections": int(a["trust"]),
         }
 
     def reset(self):
@@ -98,20 +96,20 @@ class PairContacts(PairList):
     @ti.func
     def begin(self, xp: ti.template(), yd: ti.template(), d: ti.template(), u0: ti.template()):
         """Candidate pairs for the tube around the start paths x_n + u0 + t d (x_n = ``xp``; u0 the
-        pinned particles' fixed move; pair_list.py); lowers the owner's start fraction T_MAX to the
+        pinned particles' fixed move; pair_list.py); lowers the owner's start fraction ``sc.t_max`` to the
         first contact along them. ``yd`` = y - x_n (the predicted move) is for the removed-overlap
         counter."""
         for i in range(self.n):
             self.base[i] = u0[i]
             self.path[i] = d[i]
         self._collect(xp)
-        self.acc[P_PAIRS] += ti.cast(self.n_pairs[None], ti.f64)
+        self.acc.pairs[None] += ti.cast(self.n_pairs[None], ti.f64)
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             self.lam[p] = 0.0
             r = self._reach(i, j)
             a = (xp[i] + u0[i]) - (xp[j] + u0[j])
-            self.acc[P_REMOVED] += ti.cast(ti.max(r - (xp[i] - xp[j] + yd[i] - yd[j]).norm(), 0.0), ti.f64)
+            self.acc.removed[None] += ti.cast(ti.max(r - (xp[i] - xp[j] + yd[i] - yd[j]).norm(), 0.0), ti.f64)
             b = d[i] - d[j]
             # First t in (0, 1] with |a + t b| = r, for a pair apart at x_n.
             bb = b.dot(b)
@@ -122,7 +120,7 @@ class PairContacts(PairList):
                 if disc > 0:
                     t = (-ab - ti.sqrt(disc)) / bb
                     if t < 1.0:
-                        ti.atomic_min(self.owner.sc[S.T_MAX], ti.max(t, 0.0))
+                        ti.atomic_min(self.owner.sc.t_max[None], ti.max(t, 0.0))
 
     @ti.func
     def follow(self):
@@ -151,9 +149,10 @@ class PairContacts(PairList):
     @ti.func
     def gradient(self, x: ti.template(), disp: ti.template()):
         """Per-particle gradient (``grad``) and diagonal Hessian blocks (``hess``) of the pair terms
-        at positions x (displacements ``disp`` = x - x_n), the pair blocks for ``apply``; freezes, refreezes (``ctl[UPDATE]``) and releases
-        friction multipliers, correcting the objective value as the terrain's do. Adds the pairs
-        in contact to N_ACTIVE and their candidate multipliers to the refreeze test's sums."""
+        at positions x (displacements ``disp`` = x - x_n), the pair blocks for ``apply``; freezes,
+        refreezes (``sc.update``) and releases friction multipliers, correcting the objective value
+        as the terrain's do. Adds the pairs in contact to ``sc.n_active`` and their candidate
+        multipliers to the refreeze test's sums."""
         for i in range(self.n):
             self.grad[i] = ti.Vector.zero(float, 3)
             self.hess[i] = ti.Matrix.zero(float, 3, 3)
@@ -173,25 +172,25 @@ class PairContacts(PairList):
             if ov > 0:
                 g = -(kp * ov) * nrm
                 hb = kp * nrm.outer_product(nrm)
-                self.owner.sc[S.N_ACTIVE] += 1.0
-                self.owner.sc[S.N_PAIRS] += 1.0
+                self.owner.sc.n_active[None] += 1.0
+                self.owner.sc.n_pairs[None] += 1.0
                 cand = kp * ov
-                if self.owner.ctl[S.UPDATE] or lam_old == 0:
+                if self.owner.sc.update[None] or lam_old == 0:
                     lam_new = cand
                     self.fnormal[p] = nrm
                     refrozen = 1
-                self.owner.sc[S.LAM_CHANGE] += ti.abs(cand - lam_new)
-                self.owner.sc[S.LAM_SUM] += cand
+                self.owner.sc.lam_change[None] += ti.abs(cand - lam_new)
+                self.owner.sc.lam_sum[None] += cand
             else:
                 lam_new = 0.0  # apart: released at once
             changed = refrozen or lam_new != lam_old
             if changed and lam_old > 0:  # the objective's friction term changes from lam_old f0(n_old) ...
                 f_old, _g, _h = self._friction(p, disp, n_old, lam_old)
-                self.owner.sc[S.F_CUR] -= f_old
+                self.owner.sc.f_cur[None] -= f_old
             if lam_new > 0:  # ... to lam_new f0(n_new)
                 f_new, fg, fh = self._friction(p, disp, self.fnormal[p], lam_new)
                 if changed:
-                    self.owner.sc[S.F_CUR] += f_new
+                    self.owner.sc.f_cur[None] += f_new
                 g += fg
                 hb += fh
             self.lam[p] = lam_new
@@ -213,21 +212,22 @@ class PairContacts(PairList):
 
     @ti.func
     def trial_end(self, xt: ti.template(), ut: ti.template(), dt):
-        """Add the pair terms at the trial point xt (displacements ut) to F_TRIAL (penalty and frozen friction) and the
-        penalty's energy [J] to E_TRIAL; a trial outside the tube (pair_list.py) gets an infinite value."""
+        """Add the pair terms at the trial point xt (displacements ut) to ``sc.f_trial`` (penalty and
+        frozen friction) and the penalty's energy [J] to ``sc.e_trial``; a trial outside the tube
+        (pair_list.py) gets an infinite value."""
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             ov = self._reach(i, j) - (xt[i] - xt[j]).norm()
             if ov > 0:
                 e = 0.5 * self._stiffness(i, j) * ov * ov
-                self.owner.sc[S.F_TRIAL] += e
-                self.owner.sc[S.E_TRIAL] += e / (dt * dt)
+                self.owner.sc.f_trial[None] += e
+                self.owner.sc.e_trial[None] += e / (dt * dt)
             if self.lam[p] > 0:
                 fe, _g, _h = self._friction(p, ut, self.fnormal[p], self.lam[p])
-                self.owner.sc[S.F_TRIAL] += fe
+                self.owner.sc.f_trial[None] += fe
         if self.outside():
-            self.owner.sc[S.F_TRIAL] = 1e300
-            self.acc[P_TRUST] += 1.0
+            self.owner.sc.f_trial[None] = 1e300
+            self.acc.trust[None] += 1.0
 
     # -- end: restitution and counters ------------------------------------------------------------
     @ti.func
@@ -244,9 +244,9 @@ class PairContacts(PairList):
             if ov > 0:
                 self.touch[i] += 1
                 self.touch[j] += 1
-                self.acc[P_CONTACT] += 1.0
-                self.acc[P_REMOVED] -= ti.cast(ov, ti.f64)
-                ti.atomic_max(self.acc[P_DEEPEST], ti.cast(ov, ti.f64))
+                self.acc.contact[None] += 1.0
+                self.acc.removed[None] -= ti.cast(ov, ti.f64)
+                ti.atomic_max(self.acc.deepest[None], ti.cast(ov, ti.f64))
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             d = x[i] - x[j]
@@ -263,4 +263,4 @@ class PairContacts(PairList):
                             ti.max(self.touch[i], self.touch[j]), float)
                         self.dv[i] += (share * inv_i) * nrm
                         self.dv[j] -= (share * inv_j) * nrm
-                        self.acc[P_BOUNCES] += 1.0
+                        self.acc.bounces[None] += 1.0

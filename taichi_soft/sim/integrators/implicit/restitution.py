@@ -35,7 +35,6 @@ multiplier misses the momentum the step's end velocity still carries: a 4^3 cube
 
 import taichi as ti
 
-from . import slots as S
 
 BOUNCE_CG_TOL = 1e-3  # relative PCG residual of the restitution solve (it runs on bounce steps only)
 
@@ -60,7 +59,7 @@ class SpreadBounce:
                 nrm = self.normal[i]
                 dn = nrm.dot(delta) * nrm
                 if dn.norm_sqr() > 0:
-                    self.sc[S.N_BOUNCE] += 1.0
+                    self.sc.n_bounce[None] += 1.0
         self.bounce_n[i] = dn
         return delta - dn
 
@@ -76,6 +75,6 @@ class SpreadBounce:
     def _bounce_total(self, i):
         """Particle i's whole restitution velocity change [m/s] (after the spread: walk.py)."""
         dv = self.dv[i] + self.bounce_n[i]
-        if self.sc[S.N_BOUNCE] > 0:
+        if self.sc.n_bounce[None] > 0:
             dv += self.bounce_dv[i]
         return dv

@@ -29,7 +29,6 @@ as before, and the first step after any of these events starts BDF2's history ag
 
 import taichi as ti
 
-from . import slots as S
 
 
 @ti.data_oriented
@@ -73,7 +72,7 @@ class StepScheme:
                         self.bdf2_step[None] = 0
         ok = self.bdf2_step[None]
         self.h_eff[None] = he if ok else dt
-        self.sc[S.DT_STEP] = dt
+        self.sc.dt_step[None] = dt
         for i in range(self.n):
             if ok and self._free(i):
                 ub = (x[i] - self.x_prev[i]) / 3.0
@@ -90,8 +89,8 @@ class StepScheme:
     @ti.func
     def _record_history(self, x: ti.template(), v: ti.template()):
         """After the step: keep its end state, and whether it leaves a smooth history."""
-        self.history_ok[None] = ti.cast(self.sc[S.N_BOUNCE] == 0 and self.ctl[S.CLAMPED] == 0, ti.i32)
-        self.dt_last[None] = self.sc[S.DT_STEP]
+        self.history_ok[None] = ti.cast(self.sc.n_bounce[None] == 0 and self.sc.clamped[None] == 0, ti.i32)
+        self.dt_last[None] = self.sc.dt_step[None]
         for i in range(self.n):
             self.x_end[i] = x[i]
             self.v_end[i] = v[i]

@@ -6,7 +6,6 @@ resort, the energy clamp. Its phases are walked by both drivers (walk.py).
 
 import taichi as ti
 
-from . import slots as S
 
 
 @ti.data_oriented
@@ -19,9 +18,9 @@ class StepEnd:
         h_eff), and the restitution each held particle asks for (its normal part prescribed for the
         spread, restitution.py; the tangential friction loss kept local) and the body-body responses."""
         m = self.model
-        self.sc[S.K_SOLVE] = 0.0
-        self.sc[S.G_END] = 0.0
-        self.sc[S.N_BOUNCE] = 0.0
+        self.sc.k_solve[None] = 0.0
+        self.sc.g_end[None] = 0.0
+        self.sc.n_bounce[None] = 0.0
         if ti.static(not self.terrain.has_contact):
             self._translation_minimum(x)
         if ti.static(self._has_pairs()):
@@ -36,8 +35,8 @@ class StepEnd:
             self.v_new[i] = vi
             self.dv[i] = delta
             if self._free(i):
-                self.sc[S.K_SOLVE] += 0.5 * m.mass[i] * vi.dot(vi)
-                self.sc[S.G_END] -= m.mass[i] * m.gravity[None].dot(self.u[i])
+                self.sc.k_solve[None] += 0.5 * m.mass[i] * vi.dot(vi)
+                self.sc.g_end[None] -= m.mass[i] * m.gravity[None].dot(self.u[i])
 
     @ti.func
     def _end_finish(self, x: ti.template(), v: ti.template(), step):
@@ -47,28 +46,28 @@ class StepEnd:
         m = self.model
         scale = ti.cast(1.0, float)
         if ti.static(self.terrain.has_contact or self._has_pairs()):
-            self.sc[S.BOUNCE_A] = 0.0
-            self.sc[S.BOUNCE_B] = 0.0
+            self.sc.bounce_a[None] = 0.0
+            self.sc.bounce_b[None] = 0.0
             for i in range(self.n):
                 delta = self._bounce_total(i)
                 self.dv[i] = delta
                 if self._free(i):
-                    self.sc[S.BOUNCE_A] += 0.5 * m.mass[i] * delta.dot(delta)
-                    self.sc[S.BOUNCE_B] += m.mass[i] * self.v_new[i].dot(delta)
-            lost = self.sc[S.H_START] - (self.sc[S.K_SOLVE] + self.sc[S.G_END] + self.sc[S.E_CUR])
+                    self.sc.bounce_a[None] += 0.5 * m.mass[i] * delta.dot(delta)
+                    self.sc.bounce_b[None] += m.mass[i] * self.v_new[i].dot(delta)
+            lost = self.sc.h_start[None] - (self.sc.k_solve[None] + self.sc.g_end[None] + self.sc.e_cur[None])
             scale = self._bounce_scale(lost)
-        self.sc[S.K_END] = 0.0
+        self.sc.k_end[None] = 0.0
         for i in range(self.n):
             self._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
             if self._free(i):
-                self.sc[S.K_END] += 0.5 * m.mass[i] * v[i].dot(v[i])
+                self.sc.k_end[None] += 0.5 * m.mass[i] * v[i].dot(v[i])
         # Last resort, counted in stats(): take the excess out of the kinetic energy.
-        excess = self.sc[S.K_END] + self.sc[S.G_END] + self.sc[S.E_CUR] - self.sc[S.H_START]
+        excess = self.sc.k_end[None] + self.sc.g_end[None] + self.sc.e_cur[None] - self.sc.h_start[None]
         f = ti.cast(1.0, float)
-        noise = self.sc[S.H_SCALE] + self.sc[S.K_END] + ti.abs(self.sc[S.G_END])  # scale of its round-off
+        noise = self.sc.h_scale[None] + self.sc.k_end[None] + ti.abs(self.sc.g_end[None])  # scale of its round-off
         if self.clamp_on[None] and excess > self.energy_tol[None] * noise:
-            self.ctl[S.CLAMPED] = 1
-            k_end = self.sc[S.K_END]
+            self.sc.clamped[None] = 1
+            k_end = self.sc.k_end[None]
             if k_end > 0:
                 f = ti.sqrt(ti.max(k_end - excess, 0.0) / k_end)
         for i in range(self.n):

@@ -3,13 +3,13 @@
 A step (docs/implicit.md) is a sequence of phases: begin; the reference g(x_n) and the feasible
 start (line searches without a direction); iterations of gradient and decision, search direction,
 line search (trial and decision), accept; end (velocities, the restitution spread, finish). Every
-decision is a ti.func that writes the step's slots (``ctl``, ``sc``: slots.py). ``step`` below is
-the sequence as plain Python control flow over those slots, and it runs from this one source:
+decision is a ti.func that writes the step's scalars (``sc``: scalars.py). ``step`` below is
+the sequence as plain Python control flow over those scalars, and it runs from this one source:
 
 * inside a kernel (the serial driver: one launch runs many steps on one thread):
   ``STEP.func = ti.func(step)`` with ``InKernel`` phases, each an inlined ti.func call;
 * from Python scope (the parallel driver): ``STEP.py = step`` with ``Launches`` phases, each a
-  kernel launch whose loops over particles and springs run in parallel; each slot read is a
+  kernel launch whose loops over particles and springs run in parallel; each scalar read is a
   device sync.
 
 ``InKernel`` and ``Launches`` implement the same phase list, one line each. A solver's own
@@ -20,7 +20,6 @@ by construction, not by keeping two copies alike.
 
 import taichi as ti
 
-from . import slots as S
 
 
 class Walk:
@@ -41,12 +40,12 @@ def _step(integ, ph, x, v, dt, step):
     # so one loop runs all three phases and every phase has a single call site (the serial
     # kernel inlines each call site; fewer sites compile faster).
     for _k in range(integ.max_iters[None] + integ.max_updates[None] + 3):
-        searching = integ.ctl[S.PHASE] < 2
+        searching = integ.sc.phase[None] < 2
         if not searching:
             ph.gradient(x, he)
-            if integ.ctl[S.DONE]:
+            if integ.sc.done[None]:
                 break
-            searching = integ.ctl[S.UPDATE] == 0  # no friction refreeze pending: take a step
+            searching = integ.sc.update[None] == 0  # no friction refreeze pending: take a step
             if searching:
                 ph.walk(integ.DIRECTION, x)
                 ph.after_direction()
@@ -55,16 +54,16 @@ def _step(integ, ph, x, v, dt, step):
                     if integ.pairs.again[None]:
                         ph.pairs_regather()
         if searching:
-            for _h in range(integ.ctl[S.LS_LIMIT] + 1):
+            for _h in range(integ.sc.ls_limit[None] + 1):
                 ph.trial(x, he)
-                if integ.ctl[S.LS_DONE]:
+                if integ.sc.ls_done[None]:
                     break
             ph.accept(x)
-            if integ.ctl[S.DONE]:
+            if integ.sc.done[None]:
                 break
     ph.end_velocities(x, he)
     if ti.static(integ.terrain.has_contact):
-        if integ.sc[S.N_BOUNCE] > 0:  # restitution carried by the springs (restitution.py)
+        if integ.sc.n_bounce[None] > 0:  # restitution carried by the springs (restitution.py)
             ph.bounce_rhs()
             ph.cg(integ.bounce_rhs, integ.bounce_dv)
     ph.end_finish(x, v, step)
@@ -124,9 +123,9 @@ class InKernel:
 
     @ti.func
     def cg(self, b: ti.template(), out: ti.template()):
-        """out = A^-1 b by the solver's PCG (to its current ``rel_tol``), counted in ``ctl[CG]``."""
+        """out = A^-1 b by the solver's PCG (to its current ``rel_tol``), counted in ``sc.cg``."""
         self.i.pcg.solve(self.i, b, out, self.i.cg_iters[None])
-        self.i.ctl[S.CG] += self.i.pcg.iters[None]
+        self.i.sc.cg[None] += self.i.pcg.iters[None]
 
     @ti.func
     def end_velocities(self, x: ti.template(), dt):
@@ -187,7 +186,7 @@ class Launches:
 
     @ti.kernel
     def _add_cg(self, iters: ti.i32):
-        self.i.ctl[S.CG] += iters
+        self.i.sc.cg[None] += iters
 
     @ti.kernel
     def end_velocities(self, x: ti.template(), dt: float):
