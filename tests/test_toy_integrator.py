@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_soft.sim.footprint import FieldCounts
+from taichi_soft.sim.footprint import VEC, per_particle
 from taichi_soft.sim.integrators import REGISTRY, make_integrator
 from taichi_soft.sim.integrators.base import ExplicitConfig, Integrator
 from taichi_soft.sim.integrators.options import choice, int_at_least, option
@@ -27,7 +27,7 @@ class ToyEuler(Integrator):
     order = 1
     force_evals = 1
     description = "toy symplectic Euler with substeps (a test's integrator)"
-    FIELDS = FieldCounts(3)  # last_accel
+    BUFFERS = {"last_accel": per_particle("the last substep's acceleration [m/s^2]", VEC)}  # allocated by the base
 
     @dataclass(frozen=True)
     class Config(ExplicitConfig):
@@ -38,10 +38,6 @@ class ToyEuler(Integrator):
         def resolve(self, arch, fast_math, counts):
             out = self.but(forces="scatter") if self.forces == "auto" else self
             return ExplicitConfig.resolve(out, arch, fast_math, counts)
-
-    def __init__(self, model, terrain, options=None, contacts=None):
-        super().__init__(model, terrain, options, contacts)
-        self.last_accel = ti.Vector.field(3, float, self.n)  # [m/s^2]
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):

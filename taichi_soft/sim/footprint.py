@@ -4,6 +4,9 @@ reads it before Taichi starts).
 * ``Counts``: the scene's sizes as an integrator's ``resolve`` and ``buffers`` see them: particles,
   springs and, asked for only when needed, the skyline Cholesky envelope and the gather rows' width;
 * ``FieldCounts``: field entries per particle and per spring (reals: f32 or f64; 4-byte ints);
+* ``Field``: one field of a buffer table, ``{name: Field}``, that a class declares once: the
+  integrator base class allocates it (``integrators.base.allocate``) and ``FieldCounts.of`` counts
+  it, so what a run allocates and what the memory check sums cannot differ;
 * ``Buffers``: what one integrator allocates for those counts: its field entries, other entries
   (a factor's values, padded rows), and host bytes held for a moment while it is built.
 
@@ -35,10 +38,50 @@ class FieldCounts:
     def astuple(self):
         return (self.particle_reals, self.particle_ints, self.spring_reals, self.spring_ints)
 
+    @staticmethod
+    def of(*tables: "dict[str, Field]") -> "FieldCounts":
+        """The entries of the fields of buffer tables ``{name: Field}``."""
+        out = FieldCounts()
+        for table in tables:
+            for f in table.values():
+                counts = [0, 0, 0, 0]  # in astuple's order
+                counts[2 * (f.per == "spring") + f.ints] = f.entries
+                out = out + FieldCounts(*counts)
+        return out
+
     def bytes(self, n_particles: int, n_springs: int, real_bytes: int) -> int:
         return (n_particles * (self.particle_reals * real_bytes + self.particle_ints * 4)
                 + n_springs * (self.spring_reals * real_bytes + self.spring_ints * 4))
 
+
+@dataclass(frozen=True)
+class Field:
+    """One field of a buffer table: an element per particle or per spring (``per``), real (f32 or
+    f64, the run's precision) or 4-byte int (``ints``), a scalar (``shape`` ()), vector ((3,)) or
+    matrix ((3, 3)) per element; ``doc`` says what it holds, with its unit."""
+
+    per: str
+    shape: tuple = ()
+    ints: bool = False
+    doc: str = ""
+
+    @property
+    def entries(self) -> int:
+        out = 1
+        for d in self.shape:
+            out *= d
+        return out
+
+
+def per_particle(doc: str, shape: tuple = (), ints: bool = False) -> Field:
+    return Field("particle", shape, ints, doc)
+
+
+def per_spring(doc: str, shape: tuple = (), ints: bool = False) -> Field:
+    return Field("spring", shape, ints, doc)
+
+
+VEC, MAT = (3,), (3, 3)  # the shapes of a vector and a 3x3 matrix field's elements
 
 MODEL = FieldCounts(2, 0, 1, 3)  # model.py: mass, inv_mass | rest, ends x2, group
 STATE = FieldCounts(6, 0, 0, 0)  # state.py: x, v

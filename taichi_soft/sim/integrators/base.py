@@ -26,7 +26,7 @@ from typing import ClassVar
 
 import taichi as ti
 
-from ..footprint import Buffers, Counts, FieldCounts
+from ..footprint import Buffers, Counts, Field, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
 from ..linalg import SkylineCholesky
 from .options import Config, choice
@@ -77,19 +77,42 @@ class ExplicitConfig(IntegratorConfig):
         return out
 
 
+def allocate(owner, table: "dict[str, Field]", n_particles: int, n_springs: int):
+    """Allocate the fields of a buffer table (``footprint.Field``) as attributes of ``owner``: an
+    element per particle (``n_particles``) or per spring (``n_springs``, at least 1), in the run's
+    real type or i32."""
+    for name, f in table.items():
+        size = n_particles if f.per == "particle" else max(n_springs, 1)
+        dtype = ti.i32 if f.ints else float
+        if len(f.shape) == 0:
+            field = ti.field(dtype, size)
+        elif len(f.shape) == 1:
+            field = ti.Vector.field(f.shape[0], dtype, size)
+        else:
+            field = ti.Matrix.field(*f.shape, dtype, size)
+        setattr(owner, name, field)
+
+
 @ti.data_oriented
 class Integrator:
     """Base class. Subclasses set ``name``, ``order``, ``force_evals`` and ``_step_body(x, v, dt, step)``;
     they declare their options as ``Config`` (``ExplicitConfig``, or a subclass whose ``resolve``
-    makes its own ``auto`` values concrete) and what they allocate in ``FIELDS`` (per particle and
-    spring, beyond the force pass) or, where it depends on their options, by extending ``buffers``."""
+    makes its own ``auto`` values concrete) and their fields per particle and spring in ``BUFFERS``
+    (``{name: footprint.Field}``: this class allocates them before anything else and
+    ``memory.estimate`` counts them); fields that depend on their options, by extending ``buffers``
+    and allocating them themselves."""
 
     name = "base"
     order = 0  # global order of accuracy in dt (smooth problems)
     force_evals = 0  # force evaluations per step
     implicit = False
     description = ""
-    FIELDS = FieldCounts()  # the integrator's own fields, per particle and per spring (memory.estimate)
+    # The class's own fields per particle and spring ({name: footprint.Field}); a subclass's table adds
+    # to its bases' (``buffer_table``). The base allocates them all first thing in ``__init__``.
+    BUFFERS: ClassVar[dict] = {}
+    # Field entries it allocates outside its table, per particle and spring (the model's adjacency
+    # it asks for, a PCG's vectors).
+    FIELDS = FieldCounts()
     # Peak resident memory [bytes] of a tiny run (n = 3, a few steps) on a CPU backend: the process,
     # numpy, the Taichi runtime and the compiled kernels; the midpoint of a run that compiles its
     # kernels (empty offline cache) and one that loads them (memory.py). Not measured: the largest.
@@ -100,6 +123,7 @@ class Integrator:
         self.model = model
         self.terrain = terrain
         self.n = model.n_particles
+        allocate(self, self.buffer_table(), self.n, model.n_springs)
         self.options = self.configure(options, *running_target(), model_counts(model))
         self.speed2_limit = ti.field(float, ())  # divergence threshold on |v|^2 [m^2/s^2]
         self.speed2_limit[None] = DIVERGENCE_SPEED2
@@ -130,12 +154,25 @@ class Integrator:
         return config.resolve(arch, fast_math, counts)
 
     @classmethod
+    def buffer_table(cls) -> dict:
+        """The fields this class allocates per particle and spring: its ``BUFFERS`` and its bases'."""
+        table = {}
+        for klass in reversed(cls.__mro__):
+            table.update(vars(klass).get("BUFFERS", {}))
+        return table
+
+    @classmethod
+    def field_counts(cls) -> FieldCounts:
+        """Field entries per particle and spring: the buffer table's and ``FIELDS``."""
+        return FieldCounts.of(cls.buffer_table()) + cls.FIELDS
+
+    @classmethod
     def buffers(cls, options: Config, arch: str, counts: Counts, real_bytes: int) -> Buffers:
         """What this integrator allocates for ``counts`` with ``options`` (resolved), besides the
-        model's and the state's fields: the force pass's buffers (explicit methods), ``FIELDS``,
-        and the second state of ping-pong steps. tests/test_memory.py checks it against the fields
-        a real integrator allocates."""
-        out = Buffers(cls.FIELDS)
+        model's and the state's fields: the force pass's buffers (explicit methods), its buffer
+        table and ``FIELDS``, and the second state of ping-pong steps. tests/test_memory.py checks
+        it against the fields a real integrator allocates."""
+        out = Buffers(cls.field_counts())
         if not cls.implicit:
             out = out + pass_buffers(options.forces, counts, real_bytes)
         if cls.uses_ping_pong(options):

@@ -29,26 +29,29 @@ per-particle ti.func called from the phases of the step (docs/implicit.md, "Cont
 
 import taichi as ti
 
+from ...footprint import VEC, per_particle
+
 
 
 @ti.data_oriented
 class ContactSet:
     """Mixin of ``ImplicitIntegrator``: contact fields and per-particle ti.funcs."""
 
+    # lam_end, not the frozen lam, warm-starts the next step: once a step's refreezes are spent, lam
+    # may be an early iterate's over-count (a stiff cube pushed at 1/30 s froze 8x, then 70x its
+    # weight into friction and stopped in two steps: bench precision's plausibility table).
+    BUFFERS = {
+        "normal": per_particle("terrain normal of a held particle", VEC),
+        "trial_normal": per_particle("its normal at the line-search trial point", VEC),
+        "active": per_particle("1 = held on the terrain surface", ints=True),
+        "trial_active": per_particle("held at the line-search trial point", ints=True),
+        "released": per_particle("releases in this step (each widens the release margin)", ints=True),
+        "lam": per_particle("frozen multiplier h^2 |F_n| of a held particle [kg m]"),
+        "lam_end": per_particle("candidate multiplier at the step's last gradient, the normal force the solved "
+                                "step took: the next step's warm start (IPC's lagged normal force) [kg m]"),
+    }
+
     def _init_contact(self):
-        n = self.n
-        self.normal = ti.Vector.field(3, float, n)  # terrain normal of a held particle
-        self.trial_normal = ti.Vector.field(3, float, n)
-        self.active = ti.field(ti.i32, n)  # 1 = held on the terrain surface
-        self.trial_active = ti.field(ti.i32, n)
-        self.released = ti.field(ti.i32, n)  # releases in this step (each widens the release margin)
-        self.lam = ti.field(float, n)  # frozen multiplier h^2 |F_n| of a held particle [kg m]
-        # Candidate multiplier at the step's last gradient [kg m]: the normal force the solved step
-        # took, the warm start of the next step's multiplier (the lagged normal force of IPC) for a
-        # particle still held. Not the frozen lam: once a step's refreezes are spent, lam may be an
-        # early iterate's over-count (a stiff cube pushed at 1/30 s froze 8x, then 70x its weight
-        # into friction and stopped in two steps: bench precision's plausibility table).
-        self.lam_end = ti.field(float, n)
         self.release_tol = ti.field(float, ())  # release margin floor [m/s^2] (the solver's tolerance)
 
     @ti.func

@@ -23,7 +23,8 @@ Phase 4 is ``step_end.py``; the step's counters ``accounts.py``.
 import numpy as np
 import taichi as ti
 
-from ...footprint import ADJACENCY, FieldCounts
+from ...footprint import ADJACENCY, VEC, FieldCounts, per_particle
+from ...linalg import PCG
 from ...model import CHANGED_MASSES
 from ..base import Integrator
 from .accounts import StepAccounts
@@ -48,32 +49,34 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     (a ``walk.Walk``: dx from rhs at the iterate x; by default the PCG solve) and ``Config`` (an
     ``options.ImplicitConfig``: its ``residual_tol`` and ``max_iterations`` stop the iterations). A
     solver whose direction has phases of its own extends ``IN_KERNEL`` and ``LAUNCHES`` with them.
+
+    Fields: a solver declares those of a fixed size in ``BUFFERS`` (the base class allocates them);
+    those whose size depends on its options (a factor, L-BFGS pairs) it allocates in ``__init__``
+    before calling this one's, and declares them in ``buffers``. (Allocating before any kernel has
+    run keeps them in one Taichi SNode tree; a runtime holds a limited number of trees.)
     """
 
     implicit = True
     order = 1
     force_evals = 0
-    # No force-pass buffers; the model's adjacency, and per particle: the objective's 9 vectors (with
-    # the displacements u, u_trial the solve iterates on) and friction block, contact normals,
-    # multiplier and its end-of-step value (the next step's warm start), end-of-step velocities (50
-    # reals), the PCG's 4 vectors (12), restitution's prescribed change, right-hand side and response
-    # (9), the scheme's base displacement and the last step's end state (9), the active-set flags
-    # (3 ints); per spring: damper direction and gradient (6 reals).
-    FIELDS = ADJACENCY + FieldCounts(80, 3, 6, 0)
+    # No force-pass buffers. Its parts' tables (Objective, ContactSet, SpreadBounce, StepScheme) and
+    # this one; besides them the model's adjacency and the PCG's 4 vectors (linalg.PCG).
+    BUFFERS = {
+        "v_new": per_particle("velocity from the solve [m/s]", VEC),
+        "dv": per_particle("restitution's velocity change [m/s]", VEC),
+    }
+    FIELDS = ADJACENCY + FieldCounts(12)
     Config = ImplicitConfig  # each solver's own extends it (options.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
     IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
 
     def __init__(self, model, terrain, options=None, contacts=None):
+        self.pcg = PCG(model.n_particles)  # every linear solve of the step (walk.py's ``cg``)
         super().__init__(model, terrain, options, contacts)
         self._init_objective(model)
         self._init_contact()
-        self._init_restitution()
         self._init_scheme(self.options.scheme == "bdf2")
-        n = self.n
         o = self.options
-        self.v_new = ti.Vector.field(3, float, n)  # velocity from the solve [m/s]
-        self.dv = ti.Vector.field(3, float, n)  # restitution's velocity change [m/s]
         # f64 whatever the precision: its sums run over every particle (objective, residual, energies),
         # and in f32 a sum over 10^5-10^7 terms lost the line search's decrease and the energy
         # balance to round-off (a large body froze: docs/implicit.md, "Precision").

@@ -11,7 +11,7 @@ two-level preconditioner for ``implicit_euler``'s PCG: 3-4x fewer CG iterations,
 
 import taichi as ti
 
-from ...footprint import STATE, Buffers, FieldCounts
+from ...footprint import STATE, Buffers, FieldCounts, per_particle
 from ...linalg import SkylineCholesky
 from ...model import CHANGED_MASSES, CHANGED_SPRINGS
 
@@ -51,6 +51,8 @@ class LaplacianMatrix:
     """Mixin of the implicit integrators: the fields of A = M + L and its factorisation, chosen by
     the ``global_solver`` option."""
 
+    BUFFERS = {"diag": per_particle("diagonal of M + L [kg] (0 for pinned particles)")}
+
     @classmethod
     def buffers(cls, options, arch, counts, real_bytes):
         """The factor (index fields, the envelope's values) when it factorises; and the host bytes
@@ -61,12 +63,11 @@ class LaplacianMatrix:
         out = super().buffers(options, arch, counts, real_bytes)
         if options.global_solver in FACTORISED:
             out = out + Buffers(CHOLESKY_INDEX, reals=counts.envelope)
-        later = (cls.FIELDS + STATE).bytes(counts.particles, counts.springs, real_bytes)
+        later = (cls.field_counts() + STATE).bytes(counts.particles, counts.springs, real_bytes)
         return out + Buffers(transient=max(0, 16 * counts.springs + 16 * counts.particles - later))
 
     def _init_laplacian(self, model, global_solver: str, contact_auto: bool):
         self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
-        self.diag = ti.field(float, model.n_particles)  # diagonal of M + L [kg] (0 for pinned particles)
         self.factorised = global_solver in FACTORISED  # a compile-time constant
         self.chol = SkylineCholesky(model.n_particles, model.pairs_np) if self.factorised else None
         self._matrix_dt = None  # the dt [s] A was built for; None: rebuild (the model changed)

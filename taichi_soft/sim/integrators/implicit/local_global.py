@@ -17,7 +17,6 @@ its stopping tests apply as for Newton.
 import taichi as ti
 
 from ...footprint import Buffers, FieldCounts
-from ...linalg import PCG
 from ..base import MB, model_counts, register, running_target
 from .driver import ImplicitIntegrator
 from .laplacian import LaplacianMatrix
@@ -33,7 +32,6 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     name = "fast_mass_spring"
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
     Config = LocalGlobalConfig
-    FIELDS = ImplicitIntegrator.FIELDS + FieldCounts(1, 0, 0, 0)  # diagonal of M + L
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
     DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (lbfgs_walk.py)
     IN_KERNEL, LAUNCHES = LocalGlobalInKernel, LocalGlobalLaunches
@@ -52,7 +50,6 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         self.global_solver = solver
         self._init_laplacian(model, solver, contact_auto=chosen.contact_solve == "auto")
         self.scaled_contact = self.factorised and chosen.contact_solve != "pcg"  # compiled in or not
-        self.pcg = PCG(n)
         # The grab's term in the factor (Sherman-Morrison, see _factor_solve): w = A^-1 e_i for
         # the grabbed particle i, solved once per grab and factorisation.
         self.grab_in_factor = self.factorised and model.has_grab()  # a compile-time constant

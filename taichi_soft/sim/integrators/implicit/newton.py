@@ -9,8 +9,7 @@ term by default. Line search, contact and stopping are the shared driver's (driv
 
 import taichi as ti
 
-from ...footprint import FieldCounts
-from ...linalg import PCG
+from ...footprint import MAT, per_particle, per_spring
 from ...model import code_spring
 from ..base import MB, register
 from .options import NewtonConfig
@@ -25,15 +24,11 @@ class ImplicitEuler(ImplicitIntegrator):
     name = "implicit_euler"
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
     Config = NewtonConfig
-    FIELDS = ImplicitIntegrator.FIELDS + FieldCounts(9, 0, 9, 0)  # block-Jacobi inverses | Hessian blocks
+    BUFFERS = {
+        "spring_hess": per_spring("h^2 (PSD spring Hessian) + h kd l l^T [kg]", MAT),
+        "precond": per_particle("inverse 3x3 diagonal blocks, the block-Jacobi preconditioner [1/kg]", MAT),
+    }
     BASE_BYTES = 175 * MB  # measured (memory.py): process, runtime, compiled kernels
-
-    def __init__(self, model, terrain, options=None, contacts=None):
-        n, m = model.n_particles, max(model.n_springs, 1)
-        self.spring_hess = ti.Matrix.field(3, 3, float, m)  # h^2 (PSD spring Hessian) + h kd l l^T [kg]
-        self.precond = ti.Matrix.field(3, 3, float, n)  # inverse 3x3 diagonal blocks [1/kg]
-        self.pcg = PCG(n)
-        super().__init__(model, terrain, options, contacts)
 
     @ti.func
     def _store_spring_hessian(self, s, hs):

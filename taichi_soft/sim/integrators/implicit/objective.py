@@ -19,6 +19,7 @@ multipliers are (docs/implicit.md).
 
 import taichi as ti
 
+from ...footprint import MAT, VEC, per_particle, per_spring
 from ...forces import spring_energy, spring_energy_derivatives
 from ...model import code_spring, end_b_spring, is_end_a
 from .scalars import RES_HISTORY
@@ -53,27 +54,27 @@ def lagged_friction(disp, nrm, c, eps):
 class Objective:
     """Mixin of ``ImplicitIntegrator``: fields and ti.funcs of the objective."""
 
+    # The solve iterates on displacements from x_n (u, u_trial, yd): in f32 a position near 9 m
+    # rounds to 1e-6 m, as much as a 1 ms step's motion changes per step, and the rounding was
+    # biased (free fall 2.6 % slow at 1 ms). The objective's inertia and damper terms and the
+    # step's velocity read these; positions (springs, terrain) are x_n + u.
+    BUFFERS = {
+        "x_prev": per_particle("x_n [m]", VEC),
+        "v_prev": per_particle("v_n [m/s]", VEC),
+        "u": per_particle("displacement x - x_n of the current iterate [m]", VEC),
+        "u_trial": per_particle("displacement of the line-search trial point [m]", VEC),
+        "yd": per_particle("the inertial target y as a displacement: y - x_n = h v_n + h^2 g [m]", VEC),
+        "grad": per_particle("gradient of the objective [kg m]", VEC),
+        "rhs": per_particle("-grad with held particles' normal components removed [kg m]", VEC),
+        "dx": per_particle("update direction of the current iteration [m]", VEC),
+        "x_trial": per_particle("line-search trial point [m]", VEC),
+        # a held particle's friction, the grab (grab.py): not in fast_mass_spring's constant matrix
+        "fric_hess": per_particle("Hessian block of a particle's terms outside the springs [kg]", MAT),
+        "spring_dir": per_spring("damper direction l_s at x_n (frozen over the step)", VEC),
+        "spring_grad": per_spring("d(h^2 (E + D))/dx_a per spring [kg m]", VEC),
+    }
+
     def _init_objective(self, model):
-        n, m = self.n, max(model.n_springs, 1)
-        vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
-        self.x_prev = vec(n)  # x_n [m]
-        self.v_prev = vec(n)  # v_n [m/s]
-        # The solve iterates on displacements from x_n: in f32 a position near 9 m rounds to 1e-6 m,
-        # as much as a 1 ms step's motion changes per step, and the rounding was biased (free fall
-        # 2.6 % slow at 1 ms). The objective's inertia and damper terms and the step's velocity
-        # read these; positions (springs, terrain) are x_n + u.
-        self.u = vec(n)  # displacement x - x_n of the current iterate [m]
-        self.u_trial = vec(n)  # displacement of the line-search trial point [m]
-        self.yd = vec(n)  # the inertial target y as a displacement: y - x_n = h v_n + h^2 g [m]
-        self.grad = vec(n)  # gradient of the objective [kg m]
-        self.rhs = vec(n)  # -grad with held particles' normal components removed [kg m]
-        self.dx = vec(n)  # update direction of the current iteration [m]
-        self.x_trial = vec(n)  # line-search trial point [m]
-        self.spring_dir = vec(m)  # damper direction l_s at x_n (frozen over the step)
-        self.spring_grad = vec(m)  # d(h^2 (E + D))/dx_a per spring [kg m]
-        # Hessian block of a particle's terms outside the springs [kg]: a held particle's friction,
-        # the grab (grab.py); the constant matrix of fast_mass_spring does not contain them.
-        self.fric_hess = ti.Matrix.field(3, 3, float, n)
         self.fric_eps = ti.field(float, ())  # friction smoothing length friction_velocity * h [m]
         self.friction_velocity = ti.field(float, ())  # [m/s], from the option (a field: read in kernels)
         self.total_mass = ti.field(float, ())  # sum of free particles' masses [kg] (see _sync_masses)

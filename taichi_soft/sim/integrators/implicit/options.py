@@ -84,9 +84,9 @@ class LocalGlobalConfig(ImplicitConfig):
                         "residual [m/s^2] at which iterations stop early (0: only the other tests stop them)")
     global_solver: str = choice("auto", ("auto", "cholesky", "pcg", "by_stiffness"),
                                 "cholesky: prefactored skyline Cholesky (under contact see contact_solve); "
-                                "pcg: matrix-free Jacobi PCG; by_stiffness: cholesky while h^2 k_max / m_min <= 10 "
-                                "at the step, pcg on stiffer springs (faster impacts, worse sliding); auto: cholesky "
-                                "on a CPU while the factor is small, else pcg")
+                                "pcg: matrix-free block-Jacobi PCG; by_stiffness: cholesky while "
+                                "h^2 k_max / m_min <= 10 at the step, pcg on stiffer springs (faster impacts, worse "
+                                "sliding); auto: cholesky on a CPU while the factor is small, else pcg")
     contact_solve: str = choice("auto", ("auto", "scaled", "pcg"),
                                 "global step with particles held on the terrain while the factor is used: "
                                 "scaled: one solve with the prefactored matrix and one block-Jacobi smoothing "

@@ -35,6 +35,8 @@ multiplier misses the momentum the step's end velocity still carries: a 4^3 cube
 
 import taichi as ti
 
+from ...footprint import VEC, per_particle
+
 
 BOUNCE_CG_TOL = 1e-3  # relative PCG residual of the restitution solve (it runs on bounce steps only)
 
@@ -43,11 +45,11 @@ BOUNCE_CG_TOL = 1e-3  # relative PCG residual of the restitution solve (it runs 
 class SpreadBounce:
     """Mixin of ``ImplicitIntegrator``: restitution as a velocity step through the body."""
 
-    def _init_restitution(self):
-        n = self.n
-        self.bounce_n = ti.Vector.field(3, float, n)  # prescribed normal velocity change dv_N N [m/s]
-        self.bounce_rhs = ti.Vector.field(3, float, n)  # -(A dv_N N), filtered [kg m/s]
-        self.bounce_dv = ti.Vector.field(3, float, n)  # response of the free components [m/s]
+    BUFFERS = {
+        "bounce_n": per_particle("prescribed normal velocity change dv_N N [m/s]", VEC),
+        "bounce_rhs": per_particle("-(A dv_N N), filtered [kg m/s]", VEC),
+        "bounce_dv": per_particle("response of the free components [m/s]", VEC),
+    }
 
     @ti.func
     def _bounce_split(self, i, delta):

@@ -29,17 +29,21 @@ as before, and the first step after any of these events starts BDF2's history ag
 
 import taichi as ti
 
+from ...footprint import VEC, per_particle
+
 
 
 @ti.data_oriented
 class StepScheme:
     """Mixin of ``ImplicitIntegrator``: chooses each step's scheme and predictor."""
 
+    BUFFERS = {
+        "u_base": per_particle("x^ - x_n (0 for backward Euler) [m]", VEC),
+        "x_end": per_particle("position the last step left [m]", VEC),
+        "v_end": per_particle("velocity the last step left [m/s]", VEC),
+    }
+
     def _init_scheme(self, bdf2: bool):
-        n = self.n
-        self.u_base = ti.Vector.field(3, float, n)  # x^ - x_n (0 for backward Euler) [m]
-        self.x_end = ti.Vector.field(3, float, n)  # state the last step left [m]
-        self.v_end = ti.Vector.field(3, float, n)  # [m/s]
         self.bdf2_on = ti.field(ti.i32, ())  # the option: 1 = BDF2 where the history allows
         self.bdf2_on[None] = int(bdf2)
         self.history_ok = ti.field(ti.i32, ())  # 1: the last step left a smooth history
