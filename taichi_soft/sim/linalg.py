@@ -24,6 +24,8 @@ class PCG:
     The operator ``op`` passed to the functions is any data-oriented object with
       ``apply(src, dst)``        dst = A src, A symmetric positive semi-definite;
       ``precondition(src, dst)`` dst = P^{-1} src, P^{-1} symmetric positive semi-definite;
+      ``prepare_preconditioner()`` called once at the start of each solve, before the first
+                                 ``precondition`` (A and P do not change within a solve);
     both made of top-level loops. A may be singular on directions P^{-1} removes (constraint
     filtering as in Baraff & Witkin 1998, Sec. 5.3: both maps return zero on filtered components
     and the iteration stays in the unfiltered subspace).
@@ -51,6 +53,7 @@ class PCG:
         for i in range(self.n):
             x[i] = ti.Vector.zero(float, 3)
             self.r[i] = b[i]
+        op.prepare_preconditioner()
         op.precondition(self.r, self.z)
         self.rz[None] = 0.0
         for i in range(self.n):

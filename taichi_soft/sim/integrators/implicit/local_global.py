@@ -16,7 +16,7 @@ its stopping tests apply as for Newton.
 
 import taichi as ti
 
-from ...footprint import Buffers, FieldCounts
+from ...footprint import MAT, Buffers, FieldCounts, per_particle
 from ..base import MB, model_counts, register, running_target
 from .driver import ImplicitIntegrator
 from .laplacian import LaplacianMatrix
@@ -32,6 +32,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     name = "fast_mass_spring"
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
     Config = LocalGlobalConfig
+    BUFFERS = {"jacobi_inv": per_particle("block-Jacobi inverses of a Jacobi-preconditioned solve [1/kg]", MAT)}
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
     DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (lbfgs_walk.py)
     IN_KERNEL, LAUNCHES = LocalGlobalInKernel, LocalGlobalLaunches
@@ -164,6 +165,17 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         return out
 
     @ti.func
+    def prepare_preconditioner(self):
+        """The block-Jacobi inverses of this solve, when it is Jacobi-preconditioned: A's diagonal with
+        the particle's friction and pair blocks, which hold the stiff terms (a pair's kappa m / h^2 is
+        ~1000x the mass term), filtered for held particles."""
+        jacobi = self._jacobi()
+        for i in range(self.n):  # a loop under a run-time branch would run serially
+            if jacobi:
+                blk = self.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+                self.jacobi_inv[i] = self._filtered_inverse(i, blk)
+
+    @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):
         jacobi = self._jacobi()
         if ti.static(self.factorised):
@@ -171,10 +183,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
                 self._factor_solve(src, dst)
         for i in range(self.n):  # one loop for both (a loop under a run-time branch runs serially)
             if jacobi:
-                # block Jacobi: A's diagonal with the particle's friction and pair blocks, which hold
-                # the stiff terms (a pair's kappa m / h^2 is ~1000x the mass term)
-                blk = self.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
-                dst[i] = self._filtered_inverse(i, blk) @ src[i]
+                dst[i] = self.jacobi_inv[i] @ src[i]  # (prepare_preconditioner)
             else:
                 dst[i] = self._filter(i, dst[i])
 
@@ -197,7 +206,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         solves (1.8-2.9x faster), but the landing steps that reach the iteration cap end at larger
         residuals."""
         z, q, d = ti.static(self.pcg.z, self.pcg.q, self.dx)
-        self.precondition(self.rhs, z)
+        self.precondition(self.rhs, z)  # the factor's solve: the walk takes this step only while not Jacobi
         self.apply(z, q)
         for i in range(self.n):
             blk = self.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]

@@ -59,6 +59,10 @@ class ImplicitEuler(ImplicitIntegrator):
             self.pairs.apply(src, dst)
 
     @ti.func
+    def prepare_preconditioner(self):
+        pass  # stored with the gradient (_store_preconditioner)
+
+    @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):
         for i in range(self.n):
             dst[i] = self.precond[i] @ src[i]
