@@ -9,7 +9,6 @@ import numpy as np
 import taichi as ti
 
 
-
 @ti.kernel
 def _displace(integ: ti.template(), x: ti.template()):
     for i in range(integ.n):

@@ -65,6 +65,10 @@ class Field:
     ints: bool = False
     doc: str = ""
 
+    def __post_init__(self):
+        if self.per not in ("particle", "spring"):
+            raise ValueError(f"Field.per: 'particle' or 'spring', not {self.per!r}")
+
     @property
     def entries(self) -> int:
         out = 1

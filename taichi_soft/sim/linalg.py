@@ -16,6 +16,9 @@ large bodies). The triangular solves are serial by nature and force serial execu
 import numpy as np
 import taichi as ti
 
+from .allocation import allocate
+from .footprint import VEC, per_particle
+
 
 @ti.data_oriented
 class PCG:
@@ -26,7 +29,7 @@ class PCG:
       ``precondition(src, dst)`` dst = P^{-1} src, P^{-1} symmetric positive semi-definite;
       ``prepare_preconditioner()`` called once at the start of each solve, before the first
                                  ``precondition`` (A and P do not change within a solve);
-    both made of top-level loops. A may be singular on directions P^{-1} removes (constraint
+    all three made of top-level loops. A may be singular on directions P^{-1} removes (constraint
     filtering as in Baraff & Witkin 1998, Sec. 5.3: both maps return zero on filtered components
     and the iteration stays in the unfiltered subspace).
 
@@ -34,12 +37,16 @@ class PCG:
     preconditioner's norm falls by ``rel_tol``, or the iteration limit.
     """
 
+    BUFFERS = {
+        "r": per_particle("residual b - A x", VEC),
+        "z": per_particle("preconditioned residual", VEC),
+        "p": per_particle("search direction", VEC),
+        "q": per_particle("A p", VEC),
+    }
+
     def __init__(self, n: int):
         self.n = n
-        self.r = ti.Vector.field(3, float, n)  # residual b - A x
-        self.z = ti.Vector.field(3, float, n)  # preconditioned residual
-        self.p = ti.Vector.field(3, float, n)  # search direction
-        self.q = ti.Vector.field(3, float, n)  # A p
+        allocate(self, self.BUFFERS, n, 0)
         self.rz = ti.field(float, ())
         self.rz0 = ti.field(float, ())
         self.pq = ti.field(float, ())

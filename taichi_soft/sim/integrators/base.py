@@ -26,7 +26,8 @@ from typing import ClassVar
 
 import taichi as ti
 
-from ..footprint import Buffers, Counts, Field, FieldCounts
+from ..allocation import allocate
+from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
 from ..linalg import SkylineCholesky
 from .options import Config, choice
@@ -77,28 +78,12 @@ class ExplicitConfig(IntegratorConfig):
         return out
 
 
-def allocate(owner, table: "dict[str, Field]", n_particles: int, n_springs: int):
-    """Allocate the fields of a buffer table (``footprint.Field``) as attributes of ``owner``: an
-    element per particle (``n_particles``) or per spring (``n_springs``, at least 1), in the run's
-    real type or i32."""
-    for name, f in table.items():
-        size = n_particles if f.per == "particle" else max(n_springs, 1)
-        dtype = ti.i32 if f.ints else float
-        if len(f.shape) == 0:
-            field = ti.field(dtype, size)
-        elif len(f.shape) == 1:
-            field = ti.Vector.field(f.shape[0], dtype, size)
-        else:
-            field = ti.Matrix.field(*f.shape, dtype, size)
-        setattr(owner, name, field)
-
-
 @ti.data_oriented
 class Integrator:
     """Base class. Subclasses set ``name``, ``order``, ``force_evals`` and ``_step_body(x, v, dt, step)``;
     they declare their options as ``Config`` (``ExplicitConfig``, or a subclass whose ``resolve``
     makes its own ``auto`` values concrete) and their fields per particle and spring in ``BUFFERS``
-    (``{name: footprint.Field}``: this class allocates them before anything else and
+    (``{name: footprint.Field}``: this class allocates them first thing in its ``__init__`` and
     ``memory.estimate`` counts them); fields that depend on their options, by extending ``buffers``
     and allocating them themselves."""
 

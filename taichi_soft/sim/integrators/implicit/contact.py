@@ -32,7 +32,6 @@ import taichi as ti
 from ...footprint import VEC, per_particle
 
 
-
 @ti.data_oriented
 class ContactSet:
     """Mixin of ``ImplicitIntegrator``: contact fields and per-particle ti.funcs."""

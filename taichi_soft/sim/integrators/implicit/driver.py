@@ -52,20 +52,21 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
 
     Fields: a solver declares those of a fixed size in ``BUFFERS`` (the base class allocates them);
     those whose size depends on its options (a factor, L-BFGS pairs) it allocates in ``__init__``
-    before calling this one's, and declares them in ``buffers``. (Allocating before any kernel has
-    run keeps them in one Taichi SNode tree; a runtime holds a limited number of trees.)
+    before calling this one's, and declares them in ``buffers``. (Fields allocated together, with no
+    kernel launch or field access between them, share one Taichi SNode tree; a runtime holds a
+    limited number of trees.)
     """
 
     implicit = True
     order = 1
     force_evals = 0
     # No force-pass buffers. Its parts' tables (Objective, ContactSet, SpreadBounce, StepScheme) and
-    # this one; besides them the model's adjacency and the PCG's 4 vectors (linalg.PCG).
+    # this one; besides them the model's adjacency and the PCG's table (linalg.PCG).
     BUFFERS = {
         "v_new": per_particle("velocity from the solve [m/s]", VEC),
         "dv": per_particle("restitution's velocity change [m/s]", VEC),
     }
-    FIELDS = ADJACENCY + FieldCounts(12)
+    FIELDS = ADJACENCY + FieldCounts.of(PCG.BUFFERS)
     Config = ImplicitConfig  # each solver's own extends it (options.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
     IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)

@@ -70,7 +70,6 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             self.lb_dot = ti.field(float, ())
         super().__init__(model, terrain, chosen, contacts)  # resolved: nothing left to choose there
 
-
     def _prepare(self, dt: float):
         self._prepare_laplacian(dt)
         if self.grab_in_factor:
@@ -165,6 +164,11 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         return out
 
     @ti.func
+    def _jacobi_block(self, i):
+        """Particle i's 3x3 diagonal block of A + F [kg]: A's diagonal with its friction and pair blocks."""
+        return self.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+
+    @ti.func
     def prepare_preconditioner(self):
         """The block-Jacobi inverses of this solve, when it is Jacobi-preconditioned: A's diagonal with
         the particle's friction and pair blocks, which hold the stiff terms (a pair's kappa m / h^2 is
@@ -172,7 +176,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         jacobi = self._jacobi()
         for i in range(self.n):  # a loop under a run-time branch would run serially
             if jacobi:
-                blk = self.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+                blk = self._jacobi_block(i)
                 self.jacobi_inv[i] = self._filtered_inverse(i, blk)
 
     @ti.func
@@ -209,7 +213,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         self.precondition(self.rhs, z)  # the factor's solve: the walk takes this step only while not Jacobi
         self.apply(z, q)
         for i in range(self.n):
-            blk = self.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+            blk = self._jacobi_block(i)
             d[i] = z[i] + self._filter(i, blk.inverse() @ (self.rhs[i] - q[i]))
         self.pcg.rz[None] = 0.0
         for i in range(self.n):

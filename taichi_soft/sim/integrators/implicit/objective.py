@@ -25,7 +25,6 @@ from ...model import code_spring, end_b_spring, is_end_a
 from .scalars import RES_HISTORY
 
 
-
 @ti.func
 def lagged_friction(disp, nrm, c, eps):
     """Lagged Coulomb friction of a displacement ``disp`` [m] against a contact of normal ``nrm``:

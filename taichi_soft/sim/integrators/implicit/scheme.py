@@ -32,7 +32,6 @@ import taichi as ti
 from ...footprint import VEC, per_particle
 
 
-
 @ti.data_oriented
 class StepScheme:
     """Mixin of ``ImplicitIntegrator``: chooses each step's scheme and predictor."""

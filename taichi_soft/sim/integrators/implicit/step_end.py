@@ -7,7 +7,6 @@ resort, the energy clamp. Its phases are walked by both drivers (walk.py).
 import taichi as ti
 
 
-
 @ti.data_oriented
 class StepEnd:
     """Mixin of ``ImplicitIntegrator``: the end of a step."""

@@ -21,7 +21,6 @@ by construction, not by keeping two copies alike.
 import taichi as ti
 
 
-
 class Walk:
     """A sequence of phases ``fn(integ, ph, x)`` (or more arguments): ``py`` runs it from Python
     scope, ``func`` is the same source as a ti.func for the inside of a kernel."""
