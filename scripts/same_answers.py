@@ -11,9 +11,14 @@ each run through ``Simulation`` in f64 with fast math off. Prints one line per r
     diff before.txt after.txt                                 # no output: the same answers
 
 Compare runs made with the same TAICHI_SOFT_OPTIMIZE setting (Taichi's IR passes may reorder
-arithmetic). Takes about 2 minutes on the 2-core VM with TAICHI_SOFT_OPTIMIZE=0.
+arithmetic). Takes about 4 minutes on the 2-core VM with TAICHI_SOFT_OPTIMIZE=0.
+
+``--stats`` adds to each line ``stats`` and a hash of the integrator's ``stats()`` after the run
+(iterations, CG iterations, refreezes, clamped and failed steps, pair counters...), for a change
+that must also leave the solvers' work unchanged; the default lines stay as they were.
 """
 import hashlib
+import json
 import sys
 from pathlib import Path
 
@@ -32,11 +37,18 @@ SMALL = ["body.0.n=5"]
 DURATION = 2.0  # [s]: the single bodies land by about 1.4 s
 
 
+STATS = "--stats" in sys.argv[1:]
+
+
 def fingerprint(scene: str, integrator: str, dt: float, sets=()) -> str:
     sim = Simulation(load_scene(scene, list(sets), integrator_names=names()), integrator=integrator, dt=dt)
     sim.advance(int(round(DURATION / dt)))
     x, v = sim.state.numpy()
-    return hashlib.sha256(x.tobytes() + v.tobytes()).hexdigest()[:16]
+    out = hashlib.sha256(x.tobytes() + v.tobytes()).hexdigest()[:16]
+    if STATS:
+        stats = json.dumps(sim.integrator.stats(), sort_keys=True, default=str)
+        out += " stats " + hashlib.sha256(stats.encode()).hexdigest()[:16]
+    return out
 
 
 def main():
