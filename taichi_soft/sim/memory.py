@@ -108,11 +108,12 @@ def integrator_buffers(scene_data: dict, integrator: str, arch: str, real_bytes:
     """What the registered integrator ``integrator`` allocates for this scene, as it declares it:
     its options (the scene's ``[solver]`` table, those it has) resolved for ``arch`` and the
     counts, then its ``buffers``. An unregistered name is a ``UserError``."""
-    from .integrators import integrator_class  # imports Taichi: only once the CLI has set it up quietly
+    # imports Taichi: only once the CLI has set it up quietly
+    from .integrators import integrator_class, scene_options
 
     cls = integrator_class(integrator)
     c = sizes or counts(scene_data)
-    options = cls.configure(cls.Config.accepted(scene_data.get("solver", {})), arch, fast_math, c)
+    options = cls.configure(scene_options(integrator, scene_data), arch, fast_math, c)
     return cls.buffers(options, arch, c, real_bytes)
 
 
@@ -170,9 +171,10 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     return {"host": host, "device": device, "fields": fields, "particles": n_p, "springs": n_s, "arch": arch}
 
 
-def estimate_bytes(scene_data: dict, integrator, precision: str, arch: str, fast_math: bool = True) -> int:
+def estimate_bytes(scene_data: dict, integrator, precision: str, arch: str, fast_math: bool = True,
+                   record_states: bool = False) -> int:
     """Peak resident host bytes of a run, plus device bytes on GPU backends (see ``estimate``)."""
-    e = estimate(scene_data, integrator, precision, arch, fast_math=fast_math)
+    e = estimate(scene_data, integrator, precision, arch, record_states, fast_math)
     return e["host"] + e["device"]
 
 
@@ -239,9 +241,8 @@ def check_fits(scene_data: dict, integrator, precision: str, arch: str, record_s
         if have is not None and need > have:
             # f32 halves the state, but the gather's rows hold (k, kd) copies in f32 that f64 reads
             # through the groups (forces.rows_look_up_groups): suggest it only where it needs less.
-            smaller = precision == "f64" and sum(
-                estimate(scene_data, integrator, "f32", arch, record_states, fast_math)[k] for k in ("host", "device")) \
-                < e["host"] + e["device"]
+            smaller = precision == "f64" and estimate_bytes(
+                scene_data, integrator, "f32", arch, fast_math, record_states) < e["host"] + e["device"]
             hint = " or --precision f32" if smaller else ""
             raise UserError(f"the bodies need about {_gb(need)} of {where} memory ({what}) but {_gb(have)} is available; "
                             f"use smaller bodies (body.N.n){hint}")
