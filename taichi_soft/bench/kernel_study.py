@@ -11,6 +11,10 @@ steps of the same stretched n^3 cube (no terrain) with gather kernels that diffe
 * ``csr``: the same without the branch (``length + TINY``, forces.spring_force);
 * ``rows``: padded rows of constant length (rows.py), the engine's loop since issue 25;
 * ``rows_lookup``: the same, k and kd looked up through the spring group per slot;
+* ``lookup_fields``: the same, with what the engine reads at run time read as it does: dt a kernel
+  argument, gravity from its field, 1/m per particle (``rows_lookup`` bakes all three in);
+* ``lookup_check``: the same plus the engine's divergence check per particle (bits of |v|^2 and
+  an atomic on a flag);
 * the engine itself (``engine gather``, ``engine scatter``) through ``Simulation.advance``.
 
 Prints steps per second of wall time and of CPU time (the steadier measure on a shared machine)
@@ -25,7 +29,7 @@ import numpy as np
 
 from .timing import Candidate, time_candidates
 
-VARIANTS = ("yardstick", "csr_branch", "csr", "rows", "rows_lookup")
+VARIANTS = ("yardstick", "csr_branch", "csr", "rows", "rows_lookup", "lookup_fields", "lookup_check")
 
 
 def _kernels(sim):
@@ -33,6 +37,7 @@ def _kernels(sim):
     import taichi as ti
 
     from ..sim.forces import spring_force
+    from ..sim.integrators.base import _not_finite
     from ..sim.rows import SpringRows
 
     m = sim.model
@@ -48,21 +53,23 @@ def _kernels(sim):
     slot_group = rows.group.to_numpy()
     rows.kkd.from_numpy(np.stack([k_np[slot_group], kd_np[slot_group]], axis=1))
     dt, inv_m = sim.dt, 1.0 / float(m.mass_np[0])
+    limit, flag = ti.field(float, ()), ti.field(ti.i32, ())
+    limit[None], flag[None] = 1e12, 1
     g = tuple(float(c) for c in m.gravity[None].to_numpy())
 
     def make(variant):
         @ti.kernel
-        def step(xo: ti.template(), vo: ti.template(), xn: ti.template(), vn: ti.template()):
+        def step(xo: ti.template(), vo: ti.template(), xn: ti.template(), vn: ti.template(), h: float):
             for i in range(m.n_particles):
                 xi, vi = xo[i], vo[i]
                 f = ti.Vector.zero(float, 3)
-                if ti.static(variant.startswith("rows")):
+                if ti.static(variant.startswith("rows") or variant.startswith("lookup")):
                     for s in range(w):
                         slot = i * w + s
                         j = rows.other[slot]
                         d = xi - xo[j]
                         kkd = ti.Vector.zero(float, 2)
-                        if ti.static(variant == "rows_lookup"):
+                        if ti.static(variant != "rows"):
                             kkd = ti.Vector([m.group_k[rows.group[slot]], m.group_kd[rows.group[slot]]])
                         else:
                             kkd = rows.kkd[slot]
@@ -81,9 +88,19 @@ def _kernels(sim):
                                 f -= (k_e[a] * (length - m.adj_rest[a]) + kd_e[a] * (vi - vo[j]).dot(lh)) * lh
                         else:
                             f += spring_force(d, vi - vo[j], length, m.adj_rest[a], k_e[a], kd_e[a])
-                v_new = vi + dt * (f * inv_m + ti.Vector(g))
-                vn[i] = v_new
-                xn[i] = xi + dt * v_new
+                if ti.static(variant.startswith("lookup")):
+                    a = m.gravity[None] * ti.cast(m.inv_mass[i] > 0, float) + f * m.inv_mass[i]
+                    v_new = vi + h * a
+                    vn[i] = v_new
+                    xn[i] = xi + h * v_new
+                    if ti.static(variant == "lookup_check"):
+                        speed2 = v_new.dot(v_new)
+                        if _not_finite(speed2) or speed2 > limit[None]:
+                            ti.atomic_min(flag[None], 0)
+                else:
+                    v_new = vi + dt * (f * inv_m + ti.Vector(g))
+                    vn[i] = v_new
+                    xn[i] = xi + dt * v_new
 
         return step
 
@@ -121,9 +138,9 @@ def main(argv=None) -> int:
             st = base.state
             for s in range(k):
                 if s % 2 == 0:
-                    kernel(st.x, st.v, x2, v2)
+                    kernel(st.x, st.v, x2, v2, base.dt)
                 else:
-                    kernel(x2, v2, st.x, st.v)
+                    kernel(x2, v2, st.x, st.v, base.dt)
         return base.reset, advance
 
     runs = {name: stepper(kern) for name, kern in kernels.items()}

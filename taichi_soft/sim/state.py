@@ -4,6 +4,8 @@
 import numpy as np
 import taichi as ti
 
+from .allocation import page_aligned_vectors
+
 
 @ti.data_oriented
 class State:
@@ -11,8 +13,7 @@ class State:
 
     def __init__(self, n_particles: int):
         self.n_particles = n_particles
-        self.x = ti.Vector.field(3, float, n_particles)
-        self.v = ti.Vector.field(3, float, n_particles)
+        self.x, self.v = page_aligned_vectors(n_particles, 2)
 
     def set(self, x: np.ndarray, v: np.ndarray):
         """Copy positions [m] and velocities [m/s], arrays [n_particles, 3], into the state.

@@ -26,7 +26,7 @@ from typing import ClassVar
 
 import taichi as ti
 
-from ..allocation import allocate
+from ..allocation import allocate, page_aligned_vectors
 from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
 from ..linalg import SkylineCholesky
@@ -207,8 +207,7 @@ class Integrator:
         """Subclasses: steps go through ``_step_into`` and a second pair of state buffers, allocated
         here with the integrator (so the memory they take is there from the start, as counted)."""
         self.ping_pong = True
-        self._xo = ti.Vector.field(3, float, self.n)
-        self._vo = ti.Vector.field(3, float, self.n)
+        self._xo, self._vo = page_aligned_vectors(self.n, 2)
 
     def step(self, state, dt: float) -> bool:
         """One step; returns False if it diverged."""

@@ -15,6 +15,7 @@ state itself (``Integrator.ping_pong``).
 
 import taichi as ti
 
+from ..allocation import page_aligned_vectors
 from ..footprint import Buffers, FieldCounts
 from .base import MB, Integrator, register
 
@@ -40,11 +41,10 @@ class ExplicitRungeKutta(Integrator):
         self.kv = [ti.Vector.field(3, float, self.n) if self._kept[j] else None for j in range(stages)]
         # Two stage-state buffers (stage s reads buffer s % 2 ... written by stage s - 1) and
         # the running sums x_n + dt sum b_j kx_j, v_n + dt sum b_j kv_j of the stages so far.
-        two = stages > 1
-        self.xs = [ti.Vector.field(3, float, self.n) for _ in range(2)] if two else []
-        self.vs = [ti.Vector.field(3, float, self.n) for _ in range(2)] if two else []
-        self.x_acc = ti.Vector.field(3, float, self.n) if two else None
-        self.v_acc = ti.Vector.field(3, float, self.n) if two else None
+        self.xs, self.vs, self.x_acc, self.v_acc = [], [], None, None
+        if stages > 1:
+            xs0, xs1, vs0, vs1, self.x_acc, self.v_acc = page_aligned_vectors(self.n, 6)
+            self.xs, self.vs = [xs0, xs1], [vs0, vs1]
 
     @classmethod
     def _a(cls, s, j):
