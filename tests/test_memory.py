@@ -159,3 +159,23 @@ def test_an_integrator_without_field_counts_is_an_error_not_another_methods_numb
 
     with pytest.raises(UserError, match="unknown integrator 'toy'"):
         memory.estimate(load_scene("plane").data, "toy", "f64", "cpu")
+
+
+def test_a_runtime_out_of_field_trees_is_refused_not_crashed(monkeypatch):
+    """Taichi's CPU runtime holds 512 SNode trees and frees none; past them it writes out of bounds
+    (a segfault). A simulation that could take the runtime past the table is refused instead."""
+    from taichi_soft.errors import UserError
+    from taichi_soft.sim import allocation
+    from taichi_soft.sim.integrators import make_integrator
+    from taichi_soft.sim.simulation import Simulation
+
+    scene = load_scene("plane", ["body.0.n=3"])
+    sim = Simulation(scene)  # room enough: builds
+    used = ti.lang.impl.get_runtime().prog.get_snode_tree_size()
+    assert used >= 9  # the trees it built are counted
+    monkeypatch.setattr(allocation, "MAX_TREES", used + allocation.TREES_PER_SIMULATION - 1)
+    with pytest.raises(UserError, match="field trees"):
+        Simulation(scene)
+    with pytest.raises(UserError, match="field trees"):  # the demo's integrator switch
+        make_integrator("rk4", sim.model, sim.terrain)
+    assert ti.lang.impl.get_runtime().prog.get_snode_tree_size() == used  # refused before allocating

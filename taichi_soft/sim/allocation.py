@@ -1,17 +1,71 @@
-"""Allocating a buffer table (``footprint.Field`` by name) as Taichi fields of an object, and the
-hot per-particle vectors of the steps (``page_aligned_vectors``).
+"""Allocating the per-particle and per-spring arrays of the steps: a buffer table
+(``footprint.Field`` by name) as Taichi fields of an object (``allocate``), and the state-sized
+vectors every step streams through (``page_aligned_vectors``); the runtime's limit on SNode trees
+(``check_tree_room``).
 
 The table is the one home of what a class allocates per particle and per spring: this module
 allocates it, ``footprint.FieldCounts.of`` counts it for the memory check.
+
+The state-sized vectors lie in an SNode tree of their own, each field starting on a 4 KiB page
+(``_PagedTree``). ``ti.field`` places a field in the pending tree behind whatever was allocated just
+before it (a flag, a few group parameters), at an address that depends on them. There, the
+gathered semi-implicit Euler step at n = 40 in f64 ran 15-25 % slower than with the same four
+arrays page-aligned in a tree of their own, in one process, interleaved (``bench.kernel_study``;
+docs/benchmarks/README.md, "Array placement"). Which placements are slow was not pinned down;
+page-aligned arrays were fast in every arrangement tried.
 """
 import taichi as ti
 
+from ..errors import UserError
 from .footprint import Field
+
+PAGE_BYTES = 4096
+# Taichi 1.7's LLVM runtimes (CPU, CUDA) hold at most this many SNode trees (kMaxNumSnodeTreesLlvm
+# in taichi/inc/constants.h) and never free one; the next tree is written past the end of the
+# table: a segmentation fault, not an error.
+MAX_TREES = 512
+# Room kept for one more simulation or integrator: a simulation builds 8-18 trees (measured:
+# semi-implicit Euler 8, RK4 9, implicit Euler 10 on one body, fast mass-spring on the pile 18).
+TREES_PER_SIMULATION = 32
+
+
+def _real_bytes() -> int:
+    return 8 if ti.lang.impl.get_runtime().default_fp == ti.f64 else 4
+
+
+class _PagedTree:
+    """One ``ti.FieldsBuilder`` tree whose fields each start on a page: a tree starts on one, and
+    an unused i32 array after each field fills up to the next."""
+
+    def __init__(self):
+        # Made at the first field: Taichi refuses a new builder while one is left unfinalised,
+        # and finalising an empty one is an error.
+        self.builder = None
+        self.end = 0  # bytes up to the end of the last field placed
+
+    def add(self, field, size: int, element_bytes: int):
+        """Place ``field`` (made without a shape) with ``size`` elements of ``element_bytes``."""
+        if self.builder is None:
+            self.builder = ti.FieldsBuilder()
+        gap = -self.end % PAGE_BYTES  # a multiple of 4: every element is a multiple of 4 bytes
+        if gap:
+            self.builder.dense(ti.i, gap // 4).place(ti.field(ti.i32))
+        self.builder.dense(ti.i, size).place(field)
+        self.end = size * element_bytes
+        return field
+
+    def finalize(self):
+        if self.builder is not None:
+            self.builder.finalize()
 
 
 def allocate(owner, table: "dict[str, Field]", n_particles: int, n_springs: int):
     """Allocate the fields of ``table`` as attributes of ``owner``: an element per particle
-    (``n_particles``) or per spring (``n_springs``, at least 1), in the run's real type or i32."""
+    (``n_particles``) or per spring (``n_springs``, at least 1), in the run's real type or i32.
+
+    In the pending tree, not page-aligned in a tree of their own: that bought the implicit solvers
+    -2 to +10 % (within the spread of the rounds; docs/benchmarks/README.md, "Array placement") and
+    cost two more of the runtime's trees per simulation (``MAX_TREES``)."""
     for name, f in table.items():
         size = n_particles if f.per == "particle" else max(n_springs, 1)
         dtype = ti.i32 if f.ints else float
@@ -24,30 +78,22 @@ def allocate(owner, table: "dict[str, Field]", n_particles: int, n_springs: int)
         setattr(owner, name, field)
 
 
-PAGE_BYTES = 4096
-
-
 def page_aligned_vectors(n: int, count: int) -> list:
-    """``count`` fields of ``n`` 3-vectors in the run's real type, in one SNode tree of their own,
-    each starting on a 4 KiB page (a tree starts on one; padding between the fields).
-
-    For the arrays every step streams through: the state (x, v), the gather's second state and the
-    Runge-Kutta stage buffers. ``ti.field`` places a field in the pending tree behind whatever was
-    allocated just before (a flag, a few group parameters), at an address that depends on them.
-    There, the gathered semi-implicit Euler step at n = 40 in f64 ran 15-25 % slower than with the
-    same four arrays in a tree of their own, in one process, interleaved (``bench.kernel_study``;
-    docs/benchmarks/README.md, "Array placement"). Which placements are slow was not pinned down;
-    page-aligned arrays in their own tree were fast in every arrangement tried.
-    """
-    real_bytes = 8 if ti.lang.impl.get_runtime().default_fp == ti.f64 else 4
-    builder = ti.FieldsBuilder()
-    fields = []
-    for k in range(count):
-        f = ti.Vector.field(3, float)
-        builder.dense(ti.i, max(n, 1)).place(f)
-        fields.append(f)
-        gap = -(max(n, 1) * 3 * real_bytes) % PAGE_BYTES  # a multiple of 4 bytes
-        if gap and k < count - 1:
-            builder.dense(ti.i, gap // 4).place(ti.field(ti.i32))
-    builder.finalize()
+    """``count`` fields of ``n`` 3-vectors [the run's real type] in one tree of their own, each
+    starting on a page: the state (x, v), the gather's second state, the Runge-Kutta stage buffers."""
+    tree = _PagedTree()
+    fields = [tree.add(ti.Vector.field(3, float), max(n, 1), 3 * _real_bytes()) for _ in range(count)]
+    tree.finalize()
     return fields
+
+
+def check_tree_room():
+    """Raise ``UserError`` if building one more simulation or integrator could take this Taichi
+    runtime past ``MAX_TREES`` trees (a process that built about 30-60 simulations; the demo after
+    many terrain changes), instead of letting Taichi crash."""
+    if ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64, ti.cuda):
+        return  # the other backends have no such table
+    used = ti.lang.impl.get_runtime().prog.get_snode_tree_size()
+    if used + TREES_PER_SIMULATION > MAX_TREES:
+        raise UserError(f"this process has built {used} of the {MAX_TREES} Taichi field trees a runtime "
+                        "can hold (one simulation takes 8-18, and Taichi frees none): start a new process")

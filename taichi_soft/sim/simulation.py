@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import runtime
+from .allocation import check_tree_room
 from .bodies import BodySpec
 from .builder import ModelBuilder
 from .collision import BodyContacts, body_radius
@@ -98,6 +99,7 @@ class Simulation:
                  options: dict | None = None, check: bool = True):
         data = scene.data
         self.scene = scene
+        check_tree_room()
         self.model, self.terrain = build_world(data)
         self.integrator_name = integrator or data["sim"]["integrator"]
         if options is None:

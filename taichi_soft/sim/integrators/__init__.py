@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from ...errors import UserError
+from ..allocation import check_tree_room
 from . import explicit  # noqa: F401  registers the explicit family
 from . import implicit  # noqa: F401  registers implicit_euler, fast_mass_spring
 from .base import REGISTRY, Integrator, register
@@ -31,5 +32,8 @@ def scene_options(name: str, scene_data: dict) -> dict:
 
 def make_integrator(name: str, model, terrain, options: dict | None = None, contacts=None) -> Integrator:
     """Instantiate the integrator called ``name`` (``contacts``: the simulation's
-    ``collision.BodyContacts``, or None for one body); unknown names raise ``UserError``."""
-    return integrator_class(name)(model, terrain, options, contacts)
+    ``collision.BodyContacts``, or None for one body); unknown names raise ``UserError``, and so
+    does a runtime about to run out of field trees (``allocation.check_tree_room``)."""
+    cls = integrator_class(name)
+    check_tree_room()
+    return cls(model, terrain, options, contacts)

@@ -111,8 +111,8 @@ class Integrator:
         allocate(self, self.buffer_table(), self.n, model.n_springs)
         self.options = self.configure(options, *running_target(), model_counts(model))
         self.speed2_limit = ti.field(float, ())  # divergence threshold on |v|^2 [m^2/s^2]
-        self.speed2_limit[None] = DIVERGENCE_SPEED2
         self.diverged_step = ti.field(ti.i32, ())
+        self.speed2_limit[None] = DIVERGENCE_SPEED2  # after both: a write closes the pending tree
         self.diverged_step[None] = NOT_DIVERGED
         self.mode = self.options.mode
         self._step_counter = 0

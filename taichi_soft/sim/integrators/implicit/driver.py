@@ -97,10 +97,12 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         self.clamp_on = ti.field(ti.i32, ())
         self.tol2 = ti.field(float, ())  # tolerance on sc.res2 for this step's h_eff (see _begin_step)
         self.tol_acc = ti.field(float, ())  # the solver's residual tolerance [m/s^2]
-        self.tol_acc[None] = o.residual_tol
         self.roundoff = ti.field(float, ())  # relative objective noise the line search ignores
-        self.roundoff[None] = 16 * np.finfo(model.real).eps
         self.energy_tol = ti.field(float, ())  # relative energy growth counted as round-off
+        # Values only after every field is allocated: the first write closes the pending SNode
+        # tree, and the next field would open another (the runtime holds 512: allocation.MAX_TREES).
+        self.tol_acc[None] = o.residual_tol
+        self.roundoff[None] = 16 * np.finfo(model.real).eps
         self.energy_tol[None] = 1e3 * np.finfo(model.real).eps
         self.friction_velocity[None] = o.friction_velocity
         self.max_iters[None] = o.max_iterations
