@@ -6,8 +6,8 @@ vectors every step streams through (``page_aligned_vectors``); the runtime's lim
 The table is the one home of what a class allocates per particle and per spring: this module
 allocates it, ``footprint.FieldCounts.of`` counts it for the memory check.
 
-The state-sized vectors lie in an SNode tree of their own, each field starting on a 4 KiB page
-(``_PagedTree``). ``ti.field`` places a field in the pending tree behind whatever was allocated just
+The state-sized vectors lie in an SNode tree of their own, each field starting on a 4 KiB page.
+``ti.field`` places a field in the pending tree behind whatever was allocated just
 before it (a flag, a few group parameters), at an address that depends on them. There, the
 gathered semi-implicit Euler step at n = 40 in f64 ran 15-25 % slower than with the same four
 arrays page-aligned in a tree of their own, in one process, interleaved (``bench.kernel_study``;
@@ -27,36 +27,6 @@ MAX_TREES = 512
 # Room kept for one more simulation or integrator: a simulation builds 8-18 trees (measured:
 # semi-implicit Euler 8, RK4 9, implicit Euler 10 on one body, fast mass-spring on the pile 18).
 TREES_PER_SIMULATION = 32
-
-
-def _real_bytes() -> int:
-    return 8 if ti.lang.impl.get_runtime().default_fp == ti.f64 else 4
-
-
-class _PagedTree:
-    """One ``ti.FieldsBuilder`` tree whose fields each start on a page: a tree starts on one, and
-    an unused i32 array after each field fills up to the next."""
-
-    def __init__(self):
-        # Made at the first field: Taichi refuses a new builder while one is left unfinalised,
-        # and finalising an empty one is an error.
-        self.builder = None
-        self.end = 0  # bytes up to the end of the last field placed
-
-    def add(self, field, size: int, element_bytes: int):
-        """Place ``field`` (made without a shape) with ``size`` elements of ``element_bytes``."""
-        if self.builder is None:
-            self.builder = ti.FieldsBuilder()
-        gap = -self.end % PAGE_BYTES  # a multiple of 4: every element is a multiple of 4 bytes
-        if gap:
-            self.builder.dense(ti.i, gap // 4).place(ti.field(ti.i32))
-        self.builder.dense(ti.i, size).place(field)
-        self.end = size * element_bytes
-        return field
-
-    def finalize(self):
-        if self.builder is not None:
-            self.builder.finalize()
 
 
 def allocate(owner, table: "dict[str, Field]", n_particles: int, n_springs: int):
@@ -80,10 +50,19 @@ def allocate(owner, table: "dict[str, Field]", n_particles: int, n_springs: int)
 
 def page_aligned_vectors(n: int, count: int) -> list:
     """``count`` fields of ``n`` 3-vectors [the run's real type] in one tree of their own, each
-    starting on a page: the state (x, v), the gather's second state, the Runge-Kutta stage buffers."""
-    tree = _PagedTree()
-    fields = [tree.add(ti.Vector.field(3, float), max(n, 1), 3 * _real_bytes()) for _ in range(count)]
-    tree.finalize()
+    starting on a page: the state (x, v), the gather's second state, the Runge-Kutta stage buffers.
+    A tree starts on a page; an unused i32 array after each field fills up to the next one."""
+    size = max(n, 1)
+    real_bytes = 8 if ti.lang.impl.get_runtime().default_fp == ti.f64 else 4
+    gap = -(size * 3 * real_bytes) % PAGE_BYTES  # a multiple of 4 bytes
+    builder = ti.FieldsBuilder()
+    fields = []
+    for k in range(count):
+        if k and gap:
+            builder.dense(ti.i, gap // 4).place(ti.field(ti.i32))
+        fields.append(ti.Vector.field(3, float))
+        builder.dense(ti.i, size).place(fields[-1])
+    builder.finalize()
     return fields
 
 
