@@ -92,6 +92,36 @@ def test_terrain_switch_rebuilds_resets_and_keeps_the_other_settings(fresh):
     assert fresh.step(10) == 10
 
 
+def test_terrains_are_built_once_and_a_return_carries_the_settings_made_elsewhere(fresh, monkeypatch):
+    plane = fresh.sim
+    fresh.set_terrain("sphere")
+    sphere = fresh.sim
+    fresh.set_integrator("rk4")  # built on the sphere's simulation only ...
+    fresh.step(1)
+    fresh.set_terrain("plane")
+    assert fresh.sim is plane and fresh.sim.integrator_name == "rk4"  # ... and on the plane's on return
+    fresh.step(1)
+    compiles = CompileCounter(monkeypatch)
+    for _ in range(40):  # a class flicking between terrains: nothing new is built or compiled
+        fresh.set_terrain("sphere")
+        assert fresh.sim is sphere and fresh.step(3) == 3
+        fresh.set_terrain("plane")
+        assert fresh.sim is plane and fresh.step(3) == 3
+    assert compiles.count == 0
+    fresh.set_dt(5e-4)  # changed on the plane ...
+    fresh.set_stiffness("bend", 1500.0)
+    fresh.set_contact(restitution=0.5)
+    fresh.set_particle_mass(2.0)
+    fresh.set_gravity(4.0)
+    fresh.set_terrain("sphere")  # ... hold on the sphere's kept simulation, which starts again
+    sim = fresh.sim
+    assert sim is sphere and sim.time == 0.0 and sim.integrator_name == "rk4" and sim.dt == 5e-4
+    assert sim.model.group_k.to_numpy()[2] == 1500.0 and sim.terrain.restitution[None] == pytest.approx(0.5)
+    assert (sim.model.mass_np == 2.0).all()
+    np.testing.assert_allclose(sim.model.gravity.to_numpy(), [0.0, -4.0, 0.0])
+    np.testing.assert_allclose(positions(fresh), fresh._initial_pose()[0])
+
+
 @pytest.mark.parametrize("control", ["stiffness", "damping", "dt", "gravity", "mass", "restitution", "friction"])
 def test_live_controls_change_the_next_step_without_a_recompile(fresh, monkeypatch, control):
     fresh.set_pose(height=-0.2)  # lowest corner 0.1 m above the plane (y = -1): lands within 0.3 s

@@ -5,9 +5,11 @@ run-time parameters (fields and kernel arguments), so a slider never triggers a 
 
 * integrator: switched live, continuing from the current state. Each integrator is built once
   per terrain and kept (building one compiles its kernels, 1-7 s on a CPU);
-* terrain: a new ``Simulation`` of the same scene with ``terrain.kind`` overridden (its kernels
-  are compiled for that shape only, see ``taichi_soft.sim.terrain``); every other setting is carried
-  over and the cube starts again from its initial state;
+* terrain: a ``Simulation`` of the same scene with ``terrain.kind`` overridden (its kernels are
+  compiled for that shape only, see ``taichi_soft.sim.terrain``), built on the first switch to that
+  terrain and kept, with its integrators, for every later one: a class flicking between terrains
+  compiles each once and never runs out of Taichi field trees (``sim.allocation``). Every current
+  setting is carried over and the cube starts again from its initial state;
 * dt, stiffness, damping, restitution, friction, particle mass, gravity: live, next step;
 * drop height and rotation: change the initial pose, applied on ``reset()``;
 * the hand (``grab.py``): ``grab`` a particle toward a point, ``drag`` the point, ``release``;
@@ -29,6 +31,7 @@ in ``controller_state``.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +44,17 @@ from ..sim.simulation import Simulation
 from ..sim.terrain import KINDS as TERRAIN_KINDS
 from .controller_state import ENERGY_KEYS, EnergyHistory, Settings
 from .live_controls import HandControls, LiveParameters, recorded
+
+
+@dataclass
+class _Built:
+    """A simulation built for one terrain and what belongs to it: its grab, the integrators built on
+    it so far (by name), and the scene's own pose [m] before the window's height and rotation."""
+
+    sim: Simulation
+    grab: object
+    scene_x0: np.ndarray
+    integrators: dict = field(default_factory=dict)
 
 
 class DemoController(LiveParameters, HandControls):
@@ -77,7 +91,8 @@ class DemoController(LiveParameters, HandControls):
         self.pins: set[int] = set()  # pinned particle indices (inverse mass 0)
         self.recorder = None  # set by a recording session: logs every input (``recorded``)
         self._depth = 0  # nesting of input calls (only the outermost is logged)
-        self._build(base)
+        self._built: dict[str, _Built] = {}  # by terrain kind
+        self._activate(self._build(base))
 
     # -- construction -----------------------------------------------------------------------
     def _load(self, overrides):
@@ -85,19 +100,27 @@ class DemoController(LiveParameters, HandControls):
 
         return load_scene(self.scene_name, overrides, integrator_names=names())
 
-    def _build(self, scene):
-        """A new ``Simulation`` for ``scene`` with every current setting applied, at its start."""
+    def _build(self, scene) -> _Built:
+        """A new ``Simulation`` for ``scene`` with the current integrator and dt, kept by terrain."""
         s = self.settings
         # The window places the body itself (height, rotation: set_pose), so the scene's own start
         # is not checked against the terrain here.
         sim = Simulation(scene, integrator=s.integrator, dt=s.dt, options=scene_options(s.integrator, scene.data),
                          check=False)
-        self.grab = attach_grab(sim.model)  # before any step compiles: the steps include its force
-        self.sim = sim
-        self._integrators = {s.integrator: sim.integrator}
-        self._scene_x0 = sim.model.x0_np.copy()  # the scene's own pose, before height / rotation
+        grab = attach_grab(sim.model)  # before any step compiles: the steps include its force
+        built = _Built(sim, grab, sim.model.x0_np.copy(), {s.integrator: sim.integrator})
+        self._built[sim.terrain.kind] = built
+        return built
+
+    def _activate(self, built: _Built):
+        """Make ``built`` the running simulation with every current setting applied, at its start."""
+        self.sim, self.grab = built.sim, built.grab
+        self._integrators = built.integrators
+        self._scene_x0 = built.scene_x0
         self._mass_applied = None
         self.generation += 1
+        self._use_integrator(self.settings.integrator)
+        self.sim.set_dt(self.settings.dt)
         self._apply_live_settings()
         self.reset()
 
@@ -125,24 +148,35 @@ class DemoController(LiveParameters, HandControls):
         """Continue from the current state with integrator ``name`` (from the start if diverged)."""
         if name == self.sim.integrator_name:
             return
+        self._use_integrator(name)
+        self.settings.integrator = name
+        if self.sim.diverged or self.message:
+            self.reset()
+
+    def _use_integrator(self, name: str):
+        """Switch the running simulation to integrator ``name``, built once per terrain."""
+        if name == self.sim.integrator_name:
+            return
         integ = self._integrators.get(name)
         if integ is None:
             integ = make_integrator(name, self.sim.model, self.sim.terrain, scene_options(name, self.sim.scene.data),
                                     self.sim.contacts)
             self._integrators[name] = integ
         self.sim.set_integrator(integ)
-        self.settings.integrator = name
-        if self.sim.diverged or self.message:
-            self.reset()
 
     @recorded
     def set_terrain(self, kind: str):
-        """Rebuild the simulation on terrain ``kind`` (its default geometry), same settings, reset."""
+        """Continue on terrain ``kind`` (its default geometry) with the same settings, from the start;
+        the simulation for ``kind`` is built on the first switch to it and kept."""
         if kind == self.sim.terrain.kind:
             return
-        scene = self._load(self.overrides + [f"terrain.kind={kind}"])
+        built = self._built.get(kind)
+        if built is None:
+            built = self._build(self._load(self.overrides + [f"terrain.kind={kind}"]))
         pins = sorted(self.pins)
-        self._build(scene)
+        self.grab.release()  # the simulation left behind keeps no hand and no pins
+        self.clear_pins()
+        self._activate(built)
         self.settings.terrain = kind
         for i in pins:  # the same particles, pinned where the new start puts them
             self.toggle_pin(i)
