@@ -279,6 +279,26 @@ def test_spring_passes_count_every_evaluation_an_implicit_step_makes():
     assert REGISTRY["fast_mass_spring"].spring_passes_per_step(local_global) == 1 + 12
 
 
+def test_bench_contact_quick_slides_and_keeps_the_pile_apart(cli, tmp_path):
+    """``bench contact --quick``: fast_mass_spring's slide at mu = 0.3 decelerates by friction
+    (the aim is mu g; its sphere pairs measure +20-26 %, docs/implicit.md, so at most 1.5 mu g), and
+    2 s of the pile with contact keeps the landed bodies apart (pairs in contact, the deepest
+    overlap under a tenth of the 0.36 m finest spacing); the Markdown and the CSV agree."""
+    import csv
+
+    r = cli("bench", "contact", "--quick", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = {x["study"]: x for x in csv.DictReader(open(tmp_path / "contact.csv"))}
+    slide, cost = rows["slide"], rows["cost"]
+    assert slide["integrator"] == "fast_mass_spring" and slide["diverged"] == "False"
+    assert 0.9 * float(slide["mu_g"]) < float(slide["deceleration"]) < 1.5 * float(slide["mu_g"])
+    assert cost["diverged"] == "False" and float(cost["pairs_per_step"]) > 0
+    assert float(cost["deepest_overlap_m"]) < 0.036
+    md = (tmp_path / "CONTACT.md").read_text()
+    assert f"| {float(slide['deceleration']):.2f} |" in md and f"**{float(cost['ratio']):.2f}x**" in md
+    assert cli("bench", "contact", "--quick", "--workers", "2", "--out", tmp_path / "b").returncode == 2
+
+
 def test_bench_energy_quick_finds_no_rise_and_writes_its_files(cli, tmp_path):
     """The energy matrix (bench/energy.py) at its quick size: both implicit solvers on one body and on
     three_cubes end every step at or below the energy they began with (the step's guarantee), and

@@ -11,11 +11,12 @@ def add_parser(sub):
     """The ``bench`` command's arguments on the subparsers ``sub``."""
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
     p_bench.add_argument("study", choices=["accuracy", "precision", "stability", "speed", "memory", "report", "mesh",
-                                           "energy"],
+                                           "energy", "contact"],
                          help="what to measure; precision: work-precision at equal error (issue 22); report runs accuracy, "
                               "precision, stability, speed and memory and writes REPORT.md; mesh: the mesh-body "
                               "goals (build time, frame cost), MESH.md; energy: the implicit solvers' energy "
-                              "matrix (terrains, stiffness, steps, two-body scenes), ENERGY.md")
+                              "matrix (terrains, stiffness, steps, two-body scenes), ENERGY.md; contact: a cube sliding on a cube "
+                              "against mu g, and what body contact costs in the pile, CONTACT.md")
     p_bench.add_argument("--quick", action="store_true", help="tiny sizes: a few minutes on 2 cores (what CI runs)")
     p_bench.add_argument("--out", help="output folder (default docs/benchmarks, or out/benchmarks-quick with --quick)")
     add_task_args(p_bench)
@@ -30,8 +31,8 @@ def cmd_bench(args) -> int:
     from ..progress import CountBar
     from ..tasks import RETRIES, make_executor
 
-    if args.study in ("speed", "memory", "mesh", "energy") and (args.workers is not None or args.scheduler is not None):
-        why = ("its cases run in one process" if args.study == "energy" else
+    if args.study in ("speed", "memory", "mesh", "energy", "contact") and (args.workers is not None or args.scheduler is not None):
+        why = ("its cases run in one process" if args.study in ("energy", "contact") else
                "one configuration at a time: its measurements need a quiet machine")
         raise UserError(f"bench {args.study} runs serially ({why}); --workers/--scheduler apply to the "
                         "accuracy, precision and stability sweeps")
@@ -53,6 +54,8 @@ def cmd_bench(args) -> int:
         return EXIT_OK
     if args.study == "energy":  # the implicit solvers' energy matrix (bench/energy.py)
         return _energy(args, out_dir)
+    if args.study == "contact":  # body-body sliding and cost (bench/contact.py)
+        return _contact(args, out_dir)
     # Before any work: an unreachable --scheduler is refused here, in a few seconds.
     executor = make_executor(args.workers, args.scheduler) if args.study not in ("speed", "memory") else None
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -104,27 +107,59 @@ def cmd_bench(args) -> int:
 
 def _energy(args, out_dir) -> int:
     """``bench energy``: every case in this process; energy.csv and ENERGY.md in ``out_dir``."""
+    from ..bench import energy
+
+    def report(result, verdict):
+        print(next(line for line in verdict if line.startswith("**")))
+
+    result = _in_process(args, out_dir, "Energy matrix", len(energy.cases(args.quick)), energy.run, energy.markdown,
+                         lambda result: result["rows"], report)
+    if result["interrupted"]:
+        raise KeyboardInterrupt
+    return EXIT_OK
+
+
+def _contact(args, out_dir) -> int:
+    """``bench contact``: the slides and the pile's cost in this process; contact.csv and CONTACT.md."""
+    from ..bench import contact
+
+    def rows(result):
+        return ([{"study": "slide", **{k: v for k, v in r.items() if k != "relative_vx"}} for r in result["slide"]]
+                + [{"study": "cost", **r} for r in result["cost"]])
+
+    def report(result, _lines):
+        for r in result["slide"]:
+            print(f"slide {r['integrator']} mu={r['mu']:g}: {r['deceleration']:.2f} m/s^2 (mu g {r['mu_g']:.2f})")
+        for r in result["cost"]:
+            print(f"pile {r['integrator']}: contact on / off {r['ratio']:.2f}x")
+
+    _in_process(args, out_dir, "Body-body contact", 1, contact.run, contact.markdown, rows, report)
+    return EXIT_OK
+
+
+def _in_process(args, out_dir, title: str, cases: int, run, markdown, rows, report) -> dict:
+    """A study whose cases run in this process (``bench energy``, ``bench contact``): ``run(quick,
+    progress)``, then <study>.csv (``rows(result)``) and <STUDY>.md (``markdown(result)`` under the
+    command and the machine) in ``out_dir``; ``report(result, markdown lines)`` prints the verdict."""
     import time
 
     from .. import runtime
-    from ..bench import energy, machine
+    from ..bench import machine
     from ..bench.files import write_csv, write_text
     from ..progress import CountBar
 
     runtime.init("cpu", "f64")
     out_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    bar = CountBar(len(energy.cases(args.quick)), "bench energy", unit="case")
-    result = energy.run(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
+    bar = CountBar(cases, f"bench {args.study}", unit="case")
+    result = run(args.quick, lambda done, total, what: bar.update(done, what[:60], total=total))
     bar.close()
-    command = "python main.py bench energy" + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
-    verdict = energy.markdown(result)
-    lines = ["# Energy matrix", "", f"Command: `{command}` ({time.perf_counter() - start:.0f} s).", "", "Machine:",
+    command = f"python main.py bench {args.study}" + (" --quick" if args.quick else "") + (f" --out {args.out}" if args.out else "")
+    verdict = markdown(result)
+    lines = [f"# {title}", "", f"Command: `{command}` ({time.perf_counter() - start:.0f} s).", "", "Machine:",
              machine.markdown(machine.describe()), ""] + verdict
-    write_csv(result["rows"], out_dir / "energy.csv")
-    write_text(out_dir / "ENERGY.md", "\n".join(lines))
-    print(next(line for line in verdict if line.startswith("**")))
-    print(f"wrote energy.csv and ENERGY.md to {out_dir}")
-    if result["interrupted"]:
-        raise KeyboardInterrupt
-    return EXIT_OK
+    write_csv(rows(result), out_dir / f"{args.study}.csv")
+    write_text(out_dir / f"{args.study.upper()}.md", "\n".join(lines))
+    report(result, verdict)
+    print(f"wrote {args.study}.csv and {args.study.upper()}.md to {out_dir}")
+    return result

@@ -1,12 +1,31 @@
 """Contact between different bodies: particle-particle collision through a uniform-grid hash.
 
 Only scenes with more than one body build a ``BodyContacts`` (a one-body scene compiles none of
-this code). Each particle is a sphere of radius half its body's lattice spacing, so two bodies
-touch when particles of different bodies come closer than the sum of their radii: one lattice
-spacing for equal cubes. That is enough to block a particle from passing through a face of the
-other lattice (it would have to come within 0.71 spacings of a face's particles); a body with a
-much coarser lattice than its neighbour (over ~1.4x the spacing) could let the finer one's
-particles through its faces.
+this code). Each particle has a contact radius of half its body's lattice spacing; a pair (i, j)
+of particles of different bodies has a contact distance R_ij = r_i + r_j (one spacing for equal
+cubes) and a unit normal n from j toward i (``BodyContacts._pair_normal``):
+
+* **On a face** (i or j lies on a face of its body, ``face_normals``): n is the outward normal of
+  the particle's face that best faces the other particle (of an edge's two faces, a corner's
+  three), turned with its body's best-fit rotation at the start of the step; both on faces: the
+  normalised difference of the two. The pair overlaps by o = R_ij - n . (x_i - x_j), weighted by
+  w = (1 - |t|^2 / s^2)^2 of the tangential offset t within the face's spacing s: over a flat face
+  the weights of the face's particles sum to 1-1.125 wherever a particle is, and the gap along n is
+  the same for all of them, so the face is flat: a body slides on another's face at mu g
+  (``bench contact``: 2.94 m/s^2 at mu = 0.3, 0.00 at mu = 0; spheres made a bumpy
+  surface whose hollows held a sliding body, 7.3 m/s^2 at mu = 0).
+* **Otherwise** (two faces that face the same way, or a particle inside its body): spheres,
+  o = R_ij - |x_i - x_j|, n along x_i - x_j, w = 1.
+
+Two bodies touch at most at the distance sqrt(R_ij^2 + s^2) <= ``SPAN`` x 2 r_max, which sizes the
+hash cells. A particle passing through a face would have to come within 0.71 spacings of a face's
+particles; a body with a much coarser lattice than its neighbour (over ~1.4x the spacing) could let
+the finer one's particles through its edges. Cost: on the pile (semi-implicit Euler, 1 ms,
+2026-12-04, 2-core VM, medians of 3 alternating runs) a whole step took 0.28 ms against 0.165 ms
+with spheres; about half of the difference is the larger hash cells (SPAN), the rest the
+face normals. (The implicit solvers' contact inside the step,
+``integrators/implicit/pairs.py``, still treats every pair as spheres: docs/implicit.md, "Contact
+between bodies".)
 
 After every step (``Integrator._body_contacts``) the pass
 
@@ -15,25 +34,28 @@ After every step (``Integrator._body_contacts``) the pass
    those are hashed into a cell of edge ``cell`` (the largest contact distance) in a table of
    ``CELL_CAPACITY`` slots per bucket; a particle that finds its bucket full is not seen by
    others this step and is counted in ``overflows``;
-2. counts each particle's contacts (particles of other bodies closer than r_i + r_j);
+2. sums each particle's contact weights W (pairs with o > 0, weighted by w);
 3. computes, per pair, a position correction that removes the overlap and a velocity impulse on
    the relative velocity with the terrain's contact model: restitution only above the bounce
    threshold, Coulomb friction mu |dv_N| on the tangential relative velocity, never reversing
    it (body-body friction always acts on the impulse: there is no force-level contact between
-   bodies). Pair corrections are split by inverse mass and scaled by 1 / max(contacts of i,
-   contacts of j), the same for both particles of a pair, so momentum is conserved exactly and
-   a particle in many contacts is not over-corrected;
+   bodies). Pair corrections are split by inverse mass and scaled by w / max(W_i, W_j, 1), the
+   same for both particles of a pair, so momentum is conserved exactly and a particle in many
+   contacts is not over-corrected;
 4. applies the corrections.
 """
 
 import numpy as np
 import taichi as ti
 
+from .face_normals import rest_frames
+
 CELL_CAPACITY = 16  # particle slots per hash bucket
 # Jacobi sweeps of the velocity impulses per step: with relaxed (averaged) impulses one sweep
 # leaves most of a resting particle's approach in place and the stack jitters; four settle it.
 VELOCITY_ITERATIONS = 4
 _COUNT, _VELOCITY, _POSITION = 0, 1, 2
+SPAN = float(np.sqrt(2.0))  # largest contact distance / (2 r_max): a face pair's sqrt(R^2 + s^2)
 
 
 def table_size(n_particles: int) -> int:
@@ -43,9 +65,10 @@ def table_size(n_particles: int) -> int:
 
 def field_bytes(n_particles: int, real_bytes: int) -> int:
     """Bytes of a ``BodyContacts``'s fields (for the memory model): per bucket a count and
-    ``CELL_CAPACITY`` slots; per particle body, near flag, contact count (i32), radius and dx, dv
-    (reals)."""
-    return table_size(n_particles) * (1 + CELL_CAPACITY) * 4 + n_particles * (3 * 4 + 7 * real_bytes)
+    ``CELL_CAPACITY`` slots; per particle body, near flag and face mask (i32), radius, contact
+    weight, dx, dv and rest position (reals). Per body fields (boxes, rotations): a few hundred
+    bytes, left out."""
+    return table_size(n_particles) * (1 + CELL_CAPACITY) * 4 + n_particles * (3 * 4 + 11 * real_bytes)
 
 
 def body_radius(spec) -> float:
@@ -128,12 +151,102 @@ class BodyContacts(BodyGrid):
         n = self.n
         self.count = ti.field(ti.i32, self.table_size)
         self.slots = ti.field(ti.i32, (self.table_size, CELL_CAPACITY))
-        self.contacts = ti.field(ti.i32, n)
+        self.weight = ti.field(float, n)  # sum of the weights w of the particle's pairs in contact
         self.dx = ti.Vector.field(3, float, n)
         self.dv = ti.Vector.field(3, float, n)
         self.overflows = ti.field(ti.i64, ())  # particles not hashed (bucket full), summed over steps
         self.pairs = ti.field(ti.i64, ())  # contact pairs seen, summed over steps
-        self.cell[None] = 2.0 * float(radii.max())  # the largest contact distance
+        self.cell[None] = SPAN * 2.0 * float(radii.max())  # the largest contact distance
+        rest, faces = rest_frames(model)
+        self.rest = ti.Vector.field(3, float, n)  # rest position about the body's mean [m]
+        self.faces = ti.field(ti.i32, n)  # face mask (face_normals.AXES bits; 0: inside the body)
+        self.first = ti.field(ti.i32, self.n_bodies + 1)  # body b: particles first[b] .. first[b + 1] - 1
+        self.turn = ti.Matrix.field(3, 3, float, self.n_bodies)  # best-fit rotation of each body
+        self.rest.from_numpy(rest.astype(model.real))
+        self.faces.from_numpy(faces)
+        self.first.from_numpy(np.array([b.particles.start for b in model.bodies] + [n], np.int32))
+
+    @ti.func
+    def _turn_normals(self, x: ti.template()):
+        """``turn`` = each body's best-fit rotation at x (the polar factor of sum (x_i - c) X_i^T,
+        X the rest positions), which turns its face normals: lagged, once per step. The sums run
+        serially within a body, so repeat runs give the same bits."""
+        for b in range(self.n_bodies):
+            lo, hi = self.first[b], self.first[b + 1]
+            c = ti.Vector.zero(float, 3)
+            for i in range(lo, hi):
+                c += x[i]
+            c /= ti.cast(hi - lo, float)
+            a = ti.Matrix.zero(float, 3, 3)
+            for i in range(lo, hi):
+                a += (x[i] - c).outer_product(self.rest[i])
+            u, _p = ti.polar_decompose(a)
+            self.turn[b] = u
+
+    @ti.func
+    def _face_normal(self, i, toward):
+        """The outward normal (turned) of particle i's face that best faces direction ``toward``; zero
+        for a particle inside its body. Bit a of the mask is axis a % 3, positive for a < 3
+        (``face_normals.AXES``): column a % 3 of the body's rotation, signed."""
+        best = ti.Vector.zero(float, 3)
+        score = ti.cast(-2.0, float)
+        mask = self.faces[i]
+        turn = self.turn[self.body[i]]
+        for a in ti.static(range(6)):
+            if mask & (1 << a):
+                n = ti.static(1.0 - 2.0 * (a // 3)) * ti.Vector([turn[0, a % 3], turn[1, a % 3], turn[2, a % 3]])
+                c = n.dot(toward)
+                if c > score:
+                    score = c
+                    best = n
+        return best
+
+    @ti.func
+    def _pair_normal(self, i, j, d):
+        """Contact normal of the pair (i, j) at d = x_i - x_j (unit, from j toward i) and its face
+        spacing s [m]: s > 0 for a pair on a face (module doc), 0 for a pair of spheres."""
+        ni = self._face_normal(i, -d)
+        nj = self._face_normal(j, d)
+        fi = ni.norm_sqr() > 0.5
+        fj = nj.norm_sqr() > 0.5
+        n = ti.Vector([0.0, 1.0, 0.0], dt=float)
+        s = ti.cast(0.0, float)
+        if fi and fj and (nj - ni).norm_sqr() > 0.25:  # faces not facing the same way
+            n = (nj - ni).normalized()
+            s = 2.0 * ti.max(self.radius[i], self.radius[j])
+        elif fj and not fi:
+            n = nj
+            s = 2.0 * self.radius[j]
+        elif fi and not fj:
+            n = -ni
+            s = 2.0 * self.radius[i]
+        else:
+            dist = d.norm()
+            if dist > 0:
+                n = d / dist
+        return n, s
+
+    @ti.func
+    def _pair_gap(self, i, j, d, n, s):
+        """(overlap o [m], weight w) of the pair (i, j) at d = x_i - x_j with normal n and face
+        spacing s (``_pair_normal``); in contact when o > 0 and w > 0."""
+        reach = self.radius[i] + self.radius[j]
+        o = reach - d.norm()
+        w = ti.cast(1.0, float)
+        if s > 0:
+            dn = n.dot(d)
+            t = d - dn * n
+            q = ti.max(1.0 - t.norm_sqr() / (s * s), 0.0)
+            o = reach - dn
+            w = q * q
+        return o, w
+
+    @ti.func
+    def _span(self, i, j):
+        """Largest distance [m] at which particles i and j of different bodies can touch."""
+        reach = self.radius[i] + self.radius[j]
+        s = 2.0 * ti.max(self.radius[i], self.radius[j])
+        return ti.sqrt(reach * reach + s * s)
 
     def stats(self) -> dict:
         """Counters for the run summary: contact pairs and hash overflows, summed over all steps."""
@@ -146,6 +259,7 @@ class BodyContacts(BodyGrid):
     @ti.func
     def apply(self, x: ti.template(), v: ti.template(), dt):
         """Resolve contacts between bodies at state (x, v) in place (one pass, see module doc)."""
+        self._turn_normals(x)
         self._mark_near(x)
         for h in range(self.table_size):
             self.count[h] = 0
@@ -158,30 +272,31 @@ class BodyContacts(BodyGrid):
                 else:
                     ti.atomic_add(self.overflows[None], 1)
         for i in range(self.n):
-            self.contacts[i] = 0
+            self.weight[i] = 0.0
             if self.near[i]:
-                self.contacts[i] = self._visit(x, v, i, _COUNT)
+                self._visit(x, v, i, _COUNT)
         for _ in ti.static(range(VELOCITY_ITERATIONS)):
             for i in range(self.n):
-                if self.contacts[i] > 0:
+                if self.weight[i] > 0:
                     self._visit(x, v, i, _VELOCITY)
             for i in range(self.n):
-                if self.contacts[i] > 0:
+                if self.weight[i] > 0:
                     v[i] += self.dv[i]
         for i in range(self.n):
-            if self.contacts[i] > 0:
+            if self.weight[i] > 0:
                 self._visit(x, v, i, _POSITION)
         for i in range(self.n):
-            if self.contacts[i] > 0:
+            if self.weight[i] > 0:
                 x[i] += self.dx[i]
 
     @ti.func
     def _visit(self, x: ti.template(), v: ti.template(), i, what: ti.template()):
-        """Particle i's contacts: count them (``_COUNT``, returned), or store the sum of its
+        """Particle i's contacts: sum their weights (``_COUNT``, in ``weight``), or store the sum of its
         velocity (``_VELOCITY``, in ``dv``) or position (``_POSITION``, in ``dx``) corrections."""
-        xi, bi, ri = x[i], self.body[i], self.radius[i]
+        xi, bi = x[i], self.body[i]
         ci = self._cell_of(xi)
         found = 0
+        total = ti.cast(0.0, float)
         corr = ti.Vector.zero(float, 3)
         for o in range(27):  # the 3x3x3 cells around i's (a run-time loop: unrolled, it compiles for a minute)
             c = ci + ti.Vector([o // 9 - 1, (o // 3) % 3 - 1, o % 3 - 1])
@@ -192,24 +307,24 @@ class BodyContacts(BodyGrid):
                 # take j only from the cell it really lies in, so each pair is seen once.
                 if self.body[j] != bi and all(self._cell_of(x[j]) == c):
                     d = xi - x[j]
-                    dist = d.norm()
-                    reach = ri + self.radius[j]
-                    if dist < reach:
-                        found += 1
-                        if ti.static(what != _COUNT):
-                            n = ti.Vector([0.0, 1.0, 0.0], dt=float)
-                            if dist > 0:
-                                n = d / dist
-                            inv_i, inv_j = self.model.inv_mass[i], self.model.inv_mass[j]
-                            # i's share of the pair's correction, the same relaxation for both ends.
-                            share = inv_i / ti.max(inv_i + inv_j, 1e-30) / ti.cast(
-                                ti.max(self.contacts[i], self.contacts[j]), float)
-                            if ti.static(what == _POSITION):
-                                corr += (share * (reach - dist)) * n
-                            else:
-                                corr += share * self._impulse(v[i] - v[j], n)
+                    if d.norm() < self._span(i, j):
+                        n, s = self._pair_normal(i, j, d)
+                        ov, w = self._pair_gap(i, j, d, n, s)
+                        if ov > 0 and w > 0:
+                            found += 1
+                            total += w
+                            if ti.static(what != _COUNT):
+                                inv_i, inv_j = self.model.inv_mass[i], self.model.inv_mass[j]
+                                # i's share of the pair's correction, the same relaxation for both ends.
+                                share = w * inv_i / ti.max(inv_i + inv_j, 1e-30) / ti.max(
+                                    ti.max(self.weight[i], self.weight[j]), 1.0)
+                                if ti.static(what == _POSITION):
+                                    corr += (share * ov) * n
+                                else:
+                                    corr += share * self._impulse(v[i] - v[j], n)
         if ti.static(what == _COUNT):
             ti.atomic_add(self.pairs[None], found)
+            self.weight[i] = total
         elif ti.static(what == _VELOCITY):
             self.dv[i] = corr
         else:
