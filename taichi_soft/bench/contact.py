@@ -36,7 +36,8 @@ TWO_CUBES = {"body": [{"n": 10, "size": 3.0, "center": [0.0, 1.5, 0.0]},
 
 def slide(integrator: str, mu: float, dt: float) -> dict:
     """The slide (module doc) with ``integrator`` at step ``dt`` [s] and friction ``mu``: the
-    fitted deceleration [m/s^2] against mu g, the samples, and the fastest particle when pushed."""
+    fitted deceleration [m/s^2] against mu g (nan if the run diverged), the relative velocities
+    [m/s], and the largest particle velocity component [m/s] when the push came (settled: small)."""
     from ..sim.integrators import names
     from ..sim.scene import scene_from_dict
     from ..sim.simulation import Simulation
@@ -57,9 +58,10 @@ def slide(integrator: str, mu: float, dt: float) -> dict:
         rel.append(v[high, 0].mean() - v[low, 0].mean())
     rel = np.array(rel)
     fit = (t >= FIT[0] - 1e-9) & (t <= FIT[1] + 1e-9)
+    deceleration = float("nan") if sim.diverged else -float(np.polyfit(t[fit], rel[fit], 1)[0])
     stats = _contact_stats(sim)
     return {"integrator": integrator, "dt": dt, "mu": mu, "mu_g": mu * G,
-            "deceleration": -float(np.polyfit(t[fit], rel[fit], 1)[0]), "settled_speed": settled,
+            "deceleration": deceleration, "settled_speed": settled,
             "relative_vx": [float(r) for r in rel], "diverged": bool(sim.diverged),
             "unconverged_steps": int(stats.get("unconverged_steps", 0)), "steps": sim.steps}
 
@@ -125,6 +127,9 @@ def markdown(result: dict) -> list[str]:
            "| solver | dt [s] | mu | deceleration [m/s^2] | mu g [m/s^2] | off by | relative v_x at 0.05 / 0.3 / 0.8 s [m/s] "
            "| unconverged / all steps |", "|---|---:|---:|---:|---:|---:|---|---:|"]
     for r in result["slide"]:
+        if r["diverged"]:
+            out.append(f"| {r['integrator']} | 1/{1 / r['dt']:.0f} | {r['mu']:g} | diverged | {r['mu_g']:.2f} | | | |")
+            continue
         off = "-" if r["mu"] == 0 else f"{r['deceleration'] / r['mu_g'] - 1:+.1%}"
         v = r["relative_vx"]
         out.append(f"| {r['integrator']} | 1/{1 / r['dt']:.0f} | {r['mu']:g} | {r['deceleration']:.2f} | "
