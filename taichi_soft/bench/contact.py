@@ -145,7 +145,6 @@ def markdown(result: dict) -> list[str]:
     return out
 
 
-
 def _section(name: str) -> str:
     """The module doc's bullet ``name`` as one paragraph (for CONTACT.md)."""
     text = __doc__.split(f"* **{name}**: ", 1)[1].split("\n* ")[0].split("\n\n")[0]

@@ -21,8 +21,8 @@ Two bodies touch at most at the distance sqrt(R_ij^2 + s^2) <= ``SPAN`` x 2 r_ma
 hash cells. A particle passing through a face would have to come within 0.71 spacings of a face's
 particles; a body with a much coarser lattice than its neighbour (over ~1.4x the spacing) could let
 the finer one's particles through its edges. Cost: on the pile (semi-implicit Euler, 1 ms,
-2026-12-04, 2-core VM, medians of 3 alternating runs) a whole step took 0.28 ms against 0.165 ms
-with spheres; about half of the difference is the larger hash cells (SPAN), the rest the
+2026-12-04, 2-core VM, medians of 3 alternating runs) a whole step took 0.20 ms against 0.126 ms
+with spheres (1.6x); about half of the difference is the larger hash cells (SPAN), the rest the
 face normals. (The implicit solvers' contact inside the step,
 ``integrators/implicit/pairs.py``, still treats every pair as spheres: docs/implicit.md, "Contact
 between bodies".)
@@ -168,20 +168,27 @@ class BodyContacts(BodyGrid):
 
     @ti.func
     def _turn_normals(self, x: ti.template()):
-        """``turn`` = each body's best-fit rotation at x (the polar factor of sum (x_i - c) X_i^T,
-        X the rest positions), which turns its face normals: lagged, once per step. The sums run
-        serially within a body, so repeat runs give the same bits."""
+        """``turn`` = the best-fit rotation at x (the polar factor of sum (x_i - c) X_i^T, X the rest
+        positions) of each body with a particle ``near`` another body (only those meet pairs),
+        which turns its face normals: lagged, once per step. The sums run serially within a body,
+        so repeat runs give the same bits; a body apart costs one scan of its near flags."""
         for b in range(self.n_bodies):
             lo, hi = self.first[b], self.first[b + 1]
-            c = ti.Vector.zero(float, 3)
+            touching = 0
             for i in range(lo, hi):
-                c += x[i]
-            c /= ti.cast(hi - lo, float)
-            a = ti.Matrix.zero(float, 3, 3)
-            for i in range(lo, hi):
-                a += (x[i] - c).outer_product(self.rest[i])
-            u, _p = ti.polar_decompose(a)
-            self.turn[b] = u
+                if self.near[i]:
+                    touching = 1
+                    break
+            if touching:
+                c = ti.Vector.zero(float, 3)
+                for i in range(lo, hi):
+                    c += x[i]
+                c /= ti.cast(hi - lo, float)
+                a = ti.Matrix.zero(float, 3, 3)
+                for i in range(lo, hi):
+                    a += (x[i] - c).outer_product(self.rest[i])
+                u, _p = ti.polar_decompose(a)
+                self.turn[b] = u
 
     @ti.func
     def _face_normal(self, i, toward):
@@ -202,9 +209,9 @@ class BodyContacts(BodyGrid):
         return best
 
     @ti.func
-    def _pair_normal(self, i, j, d):
-        """Contact normal of the pair (i, j) at d = x_i - x_j (unit, from j toward i) and its face
-        spacing s [m]: s > 0 for a pair on a face (module doc), 0 for a pair of spheres."""
+    def _pair_normal(self, i, j, d, dist):
+        """Contact normal of the pair (i, j) at d = x_i - x_j, dist = |d| (unit, from j toward i) and
+        its face spacing s [m]: s > 0 for a pair on a face (module doc), 0 for a pair of spheres."""
         ni = self._face_normal(i, -d)
         nj = self._face_normal(j, d)
         fi = ni.norm_sqr() > 0.5
@@ -220,18 +227,16 @@ class BodyContacts(BodyGrid):
         elif fi and not fj:
             n = -ni
             s = 2.0 * self.radius[i]
-        else:
-            dist = d.norm()
-            if dist > 0:
-                n = d / dist
+        elif dist > 0:
+            n = d / dist
         return n, s
 
     @ti.func
-    def _pair_gap(self, i, j, d, n, s):
-        """(overlap o [m], weight w) of the pair (i, j) at d = x_i - x_j with normal n and face
-        spacing s (``_pair_normal``); in contact when o > 0 and w > 0."""
+    def _pair_gap(self, i, j, d, dist, n, s):
+        """(overlap o [m], weight w) of the pair (i, j) at d = x_i - x_j, dist = |d|, with normal n
+        and face spacing s (``_pair_normal``); in contact when o > 0 and w > 0."""
         reach = self.radius[i] + self.radius[j]
-        o = reach - d.norm()
+        o = reach - dist
         w = ti.cast(1.0, float)
         if s > 0:
             dn = n.dot(d)
@@ -259,8 +264,8 @@ class BodyContacts(BodyGrid):
     @ti.func
     def apply(self, x: ti.template(), v: ti.template(), dt):
         """Resolve contacts between bodies at state (x, v) in place (one pass, see module doc)."""
-        self._turn_normals(x)
         self._mark_near(x)
+        self._turn_normals(x)
         for h in range(self.table_size):
             self.count[h] = 0
         for i in range(self.n):
@@ -307,9 +312,10 @@ class BodyContacts(BodyGrid):
                 # take j only from the cell it really lies in, so each pair is seen once.
                 if self.body[j] != bi and all(self._cell_of(x[j]) == c):
                     d = xi - x[j]
-                    if d.norm() < self._span(i, j):
-                        n, s = self._pair_normal(i, j, d)
-                        ov, w = self._pair_gap(i, j, d, n, s)
+                    dist = d.norm()
+                    if dist < self._span(i, j):
+                        n, s = self._pair_normal(i, j, d, dist)
+                        ov, w = self._pair_gap(i, j, d, dist, n, s)
                         if ov > 0 and w > 0:
                             found += 1
                             total += w
