@@ -9,6 +9,7 @@ import os
 # runs before any module of the package imports Taichi.
 import taichi as ti
 
+from . import compile_speed
 from .errors import UserError
 
 ARCHS = ("cpu", "cuda", "vulkan", "metal", "auto")
@@ -65,6 +66,7 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
         # Prefer a GPU, quietly fall back to the CPU.
         ti_arch = ti.gpu
     optimize = optimize_default() if optimize is None else bool(optimize)
+    compile_speed.install()
     options = dict(fast_math=bool(fast_math), offline_cache=True, advanced_optimization=optimize)
     options.update(kwargs)
     # ti.init prints a "Starting on arch" banner to stdout; keep stdout for our own output.

@@ -1,0 +1,49 @@
+"""taichi_soft.compile_speed: Taichi's front end without source excerpts or repeated source reads
+still compiles the same kernels and still says where a compile error is."""
+import pytest
+import taichi as ti
+
+from taichi_soft import compile_speed
+
+
+def test_installed_on_the_pinned_taichi():
+    # runtime.init (the module's Taichi runtime, tests/conftest.py) installs it; a Taichi upgrade
+    # that moves the patched functions fails here instead of silently compiling slower.
+    assert compile_speed.install()
+    from taichi.lang import kernel_impl
+
+    assert kernel_impl._get_tree_and_ctx is compile_speed._tree_and_ctx
+
+
+@ti.func
+def _cube(x):
+    return x * x * x
+
+
+def test_kernels_calling_functions_many_times_compute_what_they_say():
+    out = ti.field(ti.f64, shape=8)
+
+    @ti.kernel
+    def fill():
+        for i in out:
+            s = 0.0
+            for j in ti.static(range(3)):  # the same ti.func transformed three times per loop body
+                s += _cube(ti.cast(i, ti.f64) + j)
+            out[i] = s
+
+    fill()
+    got = out.to_numpy()
+    assert all(got[i] == i**3 + (i + 1) ** 3 + (i + 2) ** 3 for i in range(8))
+
+
+def test_a_compile_error_still_names_the_file_line_and_function():
+    @ti.kernel
+    def broken() -> ti.f64:
+        return undefined_name * 2.0  # noqa: F821
+
+    with pytest.raises(Exception) as err:
+        broken()
+    text = str(err.value)
+    assert "undefined_name" in text and __file__ in text and "in broken" in text
+    line = next(i for i, src in enumerate(open(__file__), 1) if "return undefined_name" in src)
+    assert f"line {line}" in text, text
