@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import ast
 import textwrap
+import weakref
 
 import taichi as ti
 
@@ -58,8 +59,9 @@ def _pos_info(ctx, node) -> str:
     return f'File "{ctx.file}", line {node.lineno + ctx.lineno_offset}, in {ctx.func.func.__name__}:\n'
 
 
-# function -> (file, source lines as Taichi prepares them, first line number, dedented source)
-_sources: dict = {}
+# function -> (file, source lines as Taichi prepares them, first line number, dedented source); weak,
+# so a kernel defined inside a function (a closure over its fields) is not kept alive by the cache
+_sources: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _source(func):

@@ -15,15 +15,6 @@ ROOT = Path(__file__).resolve().parent.parent
 os.environ.setdefault("TAICHI_SOFT_OPTIMIZE", "0")
 
 
-# One CPU thread per test process: two processes share CI's two cores (pytest.ini), and with
-# Taichi's default (a thread per core) the parallel loops over the tests' small cubes wait for a
-# thread the other process holds. Measured 2026-12-04 on the 2-core VM, test_consistency.py beside
-# test_contact.py + test_implicit_scheme.py: 132 s with the default, 118 s with one thread. The
-# answers under several threads are checked in tests/test_threads.py; the command-line runs the
-# tests start keep Taichi's default.
-TEST_THREADS = 1
-
-
 @pytest.fixture(scope="module", autouse=True)
 def taichi_runtime():
     """A fresh CPU f64 Taichi runtime for each test module.
@@ -34,7 +25,7 @@ def taichi_runtime():
     """
     from taichi_soft import runtime
 
-    return runtime.init("cpu", "f64", cpu_max_num_threads=TEST_THREADS)
+    return runtime.init("cpu", "f64")
 
 
 @pytest.fixture

@@ -9,7 +9,6 @@ v = g t, and the centre of mass follows backward Euler's own discrete fall.
 import numpy as np
 import pytest
 
-from conftest import TEST_THREADS
 from physics_helpers import build
 from taichi_soft import runtime
 from taichi_soft.sim.integrators import make_integrator
@@ -18,7 +17,7 @@ from taichi_soft.sim.integrators import make_integrator
 @pytest.fixture(scope="module", autouse=True)
 def taichi_runtime():
     """This module runs in f32 (overrides conftest's f64 runtime)."""
-    return runtime.init("cpu", "f32", cpu_max_num_threads=TEST_THREADS)
+    return runtime.init("cpu", "f32")
 
 
 @pytest.mark.parametrize("name", ["implicit_euler", "fast_mass_spring"])

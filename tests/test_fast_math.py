@@ -10,7 +10,6 @@ from taichi_soft.sim.model import Model
 from taichi_soft.sim.slabs import graph_ranges
 from taichi_soft.sim.integrators import REGISTRY, make_integrator
 
-from conftest import TEST_THREADS
 from physics_helpers import build, simulate, stretched
 
 EXPLICIT = [name for name, cls in REGISTRY.items() if not cls.implicit]
@@ -178,13 +177,13 @@ def test_fast_math_same_physics_to_rounding():
                                            ("f32", 2e-5, "midpoint", "serial")):
             final = []
             for fast_math in (False, True):
-                runtime.init("cpu", precision, fast_math=fast_math, cpu_max_num_threads=TEST_THREADS)
+                runtime.init("cpu", precision, fast_math=fast_math)
                 model, terrain, x0 = _scene()
                 final.append(simulate(model, terrain, name, 1e-3, 50, x0, np.zeros_like(x0), {"mode": mode}))
             assert final[0][2] == final[1][2] == 50
             np.testing.assert_allclose(final[1][0], final[0][0], rtol=0, atol=tol, err_msg=f"{precision} {name}")
     finally:
-        runtime.init("cpu", "f64", cpu_max_num_threads=TEST_THREADS)
+        runtime.init("cpu", "f64")
 
 
 def test_divergence_caught_with_fast_math_nan_and_inf():
@@ -192,7 +191,7 @@ def test_divergence_caught_with_fast_math_nan_and_inf():
     fast math on, f64 and f32, serial and parallel (ping-pong) launches and a multi-stage method."""
     try:
         for precision in ("f64", "f32"):
-            runtime.init("cpu", precision, fast_math=True, cpu_max_num_threads=TEST_THREADS)
+            runtime.init("cpu", precision, fast_math=True)
             model, terrain, x0 = _scene()
             cases = [("semi_implicit_euler", "serial"), ("semi_implicit_euler", "parallel")]
             if precision == "f64":  # a multi-stage method once (its compile is the slow part)
@@ -208,7 +207,7 @@ def test_divergence_caught_with_fast_math_nan_and_inf():
                     assert integ.advance(state, 1e-3, 5) == 1, (precision, inject, name, mode)
                     assert integ.diverged
     finally:
-        runtime.init("cpu", "f64", cpu_max_num_threads=TEST_THREADS)
+        runtime.init("cpu", "f64")
 
 
 def test_cli_divergence_exit_3_with_fast_math(cli, tmp_path):
@@ -224,7 +223,7 @@ def test_gather_rows_zero_length_springs_and_repeats():
     springs once, then padding (itself, rest 0); a zero-length spring (two particles moved onto
     each other) gives finite motion and no divergence; a repeat run is bit-identical."""
     try:
-        runtime.init("cpu", "f32", fast_math=True, cpu_max_num_threads=TEST_THREADS)
+        runtime.init("cpu", "f32", fast_math=True)
         model, terrain = build(n=3, size=1.0)
         x0 = model.x0_np.copy()
         x0[1] = x0[0]
@@ -246,4 +245,4 @@ def test_gather_rows_zero_length_springs_and_repeats():
             assert sorted(used) == mine
             assert np.all(other[i, len(mine):] == i) and np.all(rest[i, len(mine):] == 0)
     finally:
-        runtime.init("cpu", "f64", cpu_max_num_threads=TEST_THREADS)
+        runtime.init("cpu", "f64")
