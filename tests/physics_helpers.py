@@ -37,7 +37,12 @@ def stretched(model, factor=(1.1, 0.95, 1.0)):
 
 def simulate(model, terrain, integrator, dt, steps, x0=None, v0=None, options=None):
     """Run ``steps`` steps; returns (x, v, steps_done) as numpy arrays."""
-    integ = make_integrator(integrator, model, terrain, options)
+    return run_integrator(make_integrator(integrator, model, terrain, options), model, terrain, dt, steps, x0, v0)
+
+
+def run_integrator(integ, model, terrain, dt, steps, x0=None, v0=None):
+    """``simulate`` with an integrator already built (reset first, so one compile serves many runs)."""
+    integ.reset()
     state = model.state()
     state.set(model.x0_np if x0 is None else x0, model.v0_np if v0 is None else v0)
     terrain.reset(state.x)

@@ -5,7 +5,7 @@ Taichi field trees, and test_implicit.py's runtime holds as many as Taichi 1.7 a
 import numpy as np
 import pytest
 
-from physics_helpers import moving_cube
+from physics_helpers import moving_cube, run_integrator
 from taichi_soft.sim.integrators import make_integrator
 
 FRAME = 1.0 / 60.0
@@ -23,12 +23,9 @@ def test_by_stiffness_is_the_factor_on_soft_springs_and_jacobi_pcg_on_stiff(mode
     integrators, refs = {}, {}
 
     def run(integ, dt):
-        state = model.state()
-        state.set(x0, model.v0_np)
-        terrain.reset(state.x)
-        integ.reset()
-        assert integ.advance(state, dt, 3) == 3
-        return state.x.to_numpy()
+        x, _, done = run_integrator(integ, model, terrain, dt, 3, x0=x0)
+        assert done == 3
+        return x
 
     def ref(solver, dt):
         if solver not in integrators:
