@@ -18,9 +18,7 @@ def _displace(integ: ti.template(), x: ti.template()):
 @ti.kernel
 def _no_contacts(integ: ti.template()):
     for i in range(integ.n):
-        integ.active[i] = 0
-        integ.lam[i] = 0.0
-        integ.lam_end[i] = 0.0
+        integ.contact.release(i)
 
 
 @ti.kernel

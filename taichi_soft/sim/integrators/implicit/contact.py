@@ -1,15 +1,16 @@
 """Terrain contact inside the implicit step: feasible start, active set, multipliers, restitution.
 
-The terrain is an inequality constraint d(x_i) >= 0 (``Terrain.query``). The pieces, each a
-per-particle ti.func called from the phases of the step (docs/implicit.md, "Contact"):
+The terrain is an inequality constraint d(x_i) >= 0 (``Terrain.query``). ``TerrainContact`` is a
+part of the step (the driver holds it as ``contact``); its pieces, each a per-particle ti.func
+called from the phases of the step (docs/implicit.md, "Contact"):
 
-* **Feasible start** (``_start_direction``): the step starts on the segment x_n -> predictor, at
+* **Feasible start** (``start``): the step starts on the segment x_n -> predictor, at
   the largest fraction t of it that keeps every particle outside the terrain (the driver then
   halves t until g(x_0) <= g(x_n)). Particles already on the surface whose predictor points
   inward are held from the start and move only along the surface. The predictor is never
   projected: that flattened several layers of the cube at large steps and started the solve far
   above the energy the step began with (docs/implicit.md, "One step, both solvers", item 2).
-* **Active set with hysteresis** (``_contact_gradient``): a held particle's normal is filtered
+* **Active set with hysteresis** (``gradient``): a held particle's normal is filtered
   out of the solve (Baraff & Witkin 1998, Sec. 5.3). It is released only when its multiplier is
   clearly negative, below -m h^2 max(tol, current residual) (an inexact iterate's force error is
   as large as the residual), a margin that grows with each release in the step.
@@ -18,9 +19,9 @@ per-particle ti.func called from the phases of the step (docs/implicit.md, "Cont
   corrects the current objective value, so one objective is minimised between them. A particle
   held from the start that was held at the end of the previous step starts with that step's
   normal force (warm start, the lagged force of IPC); others get theirs at their first gradient.
-* **Projection** (``_project``): trial points put held particles back onto the surface (its
+* **Projection** (``project``): trial points put held particles back onto the surface (its
   normal may turn along a curved terrain) and project and hold others that end inside.
-* **Restitution** (``_bounce``): a held particle that approached faster than the terrain's
+* **Restitution** (``bounce``): a held particle that approached faster than the terrain's
   ``bounce_threshold`` leaves with restitution times its approach speed (and, with
   ``impact_friction``, the tangential loss mu |dv_N| of that bounce impulse); slower ones do
   not bounce, as in ``Terrain.impact``. The driver scales all bounces of a step down to the energy
@@ -29,12 +30,25 @@ per-particle ti.func called from the phases of the step (docs/implicit.md, "Cont
 
 import taichi as ti
 
+from ...allocation import allocate
 from ...footprint import VEC, per_particle
+from .objective import lagged_friction
 
 
 @ti.data_oriented
-class ContactSet:
-    """Mixin of ``ImplicitIntegrator``: contact fields and per-particle ti.funcs."""
+class TerrainContact:
+    """The terrain's contact set of an implicit step: a part of ``ImplicitIntegrator``.
+
+    Inputs, given at construction: the ``model`` (masses, pinned particles), the ``terrain``
+    (``query``, restitution, friction) and the step's scalars ``sc`` (scalars.py: it reads
+    ``h2_prev``, ``res_prev`` and ``update``; it writes ``t_max``, ``lam_change``, ``lam_sum`` and
+    ``f_cur``); per call, the particle's position and its displacement from the step's base
+    (x - x_n - u_base, what friction measures) and the friction length ``eps`` [m].
+
+    Outputs: ``active[i]`` (1: held on the surface) and ``normal[i]`` (its surface normal), which the
+    driver's filter, the restitution spread and the residual read; the friction Hessian block
+    ``gradient`` returns; the projected trial position ``project`` returns. Everything else is its own.
+    """
 
     # lam_end, not the frozen lam, warm-starts the next step: once a step's refreezes are spent, lam
     # may be an early iterate's over-count (a stiff cube pushed at 1/30 s froze 8x, then 70x its
@@ -50,11 +64,46 @@ class ContactSet:
                                 "step took: the next step's warm start (IPC's lagged normal force) [kg m]"),
     }
 
-    def _init_contact(self):
+    def __init__(self, model, terrain, sc):
+        """Allocates the fields only (no write: the owner's pending SNode tree stays open)."""
+        self.model = model
+        self.terrain = terrain
+        self.sc = sc
+        allocate(self, self.BUFFERS, model.n_particles, 0)
         self.release_tol = ti.field(float, ())  # release margin floor [m/s^2] (the solver's tolerance)
 
+    def reset(self):
+        """No held particle carries a force into the next step (a reset state has no history)."""
+        self.lam.fill(0)
+        self.lam_end.fill(0)
+
     @ti.func
-    def _start_direction(self, i, xi, d, dt):
+    def _free(self, i):
+        return self.model.inv_mass[i] > 0
+
+    @ti.func
+    def _friction(self, disp, nrm, lam, eps):
+        """Friction term of a held particle displaced ``disp`` from the step's base: (energy
+        [kg m^2], gradient [kg m], Hessian [kg]).
+
+        mu lam f0(|u_t|), u_t the tangential part of ``disp``, f0 the Huber function (|u_t| beyond
+        ``eps`` = friction_velocity * h, quadratic below): the gradient is mu lam u_t/|u_t|,
+        Coulomb's bound mu |F_n| times h^2. Beyond eps the Hessian is that of the quadratic majorant
+        c |u|^2 / (2 |u_t|) + c |u_t| / 2 (iteratively reweighted least squares): a Newton step then
+        never carries the particle past the point where friction stops it, which the exact Hessian,
+        with no curvature along u_t, would; it is PSD and continuous at eps.
+        """
+        return lagged_friction(disp, nrm, self.terrain.friction[None] * lam, eps)
+
+    @ti.func
+    def release(self, i):
+        """Particle i is pinned: never held, no multiplier."""
+        self.active[i] = 0
+        self.lam[i] = 0.0
+        self.lam_end[i] = 0.0
+
+    @ti.func
+    def start(self, i, xi, d, dt):
         """Direction of particle i's start move (predicted move ``d`` = y - x_n, [m]); holds it if it
         sits on the surface and the predictor points inward; lowers ``sc.t_max`` to its crossing fraction.
 
@@ -87,13 +136,15 @@ class ContactSet:
         return d
 
     @ti.func
-    def _contact_gradient(self, i, xi, gi, dt):
-        """Active set and friction for particle i at xi with (frictionless) gradient gi [kg m].
+    def gradient(self, i, disp, gi, dt, eps):
+        """Active set and friction for particle i displaced ``disp`` from the step's base, with
+        (frictionless) gradient gi [kg m]: returns (gi plus the friction gradient, the friction
+        Hessian block [kg]).
 
         Releases a clearly pulling held particle, refreezes its multiplier when the driver asked for
         it (``sc.update``) or when it has none yet (held since the last freeze: it gets its first
-        multiplier at its first gradient), corrects the objective for any change of the friction
-        weight (the term is linear in lam), and returns gi plus the friction gradient.
+        multiplier at its first gradient), and corrects the objective for any change of the friction
+        weight (the term is linear in lam).
         """
         m = self.model
         nrm = self.normal[i]
@@ -122,19 +173,18 @@ class ContactSet:
             lam_new = 0.0
         fh = ti.Matrix.zero(float, 3, 3)
         if lam_new != lam_old or lam_new > 0:
-            f0, fg, fh1 = self._friction(i, xi, nrm, 1.0)
+            f0, fg, fh1 = self._friction(disp, nrm, 1.0, eps)
             self.sc.f_cur[None] += (lam_new - lam_old) * f0
             gi += lam_new * fg
             fh = lam_new * fh1
         self.lam[i] = lam_new
         self.lam_end[i] = end
-        self.fric_hess[i] = fh
-        return gi
+        return gi, fh
 
     @ti.func
-    def _project(self, i, xi, moved):
-        """Make trial position xi of particle i feasible (if ``moved``); writes x_trial, trial_active,
-        trial_normal."""
+    def project(self, i, xi, moved):
+        """Trial position xi of particle i made feasible (if ``moved``): returns (the position, 1 if
+        held there); records the trial's hold and normal (``accept`` takes them)."""
         hit = self.active[i]
         nrm = self.normal[i]
         if self._free(i) and moved:
@@ -143,16 +193,38 @@ class ContactSet:
                 xi -= dist * nq
                 hit = 1
                 nrm = nq
-        self.x_trial[i] = xi
         self.trial_active[i] = hit
         self.trial_normal[i] = nrm
-        return xi
+        return xi, hit
 
     @ti.func
-    def _bounce(self, i, vi, xi):
-        """Velocity change [m/s] restitution asks for particle i at xi with solved velocity vi: a
-        held particle, or one the step left inside the terrain's skin (``epsilon``) approaching
-        faster than the bounce threshold.
+    def trial_friction(self, i, disp, eps):
+        """Friction energy [kg m^2] of particle i at a trial point displaced ``disp`` from the
+        step's base: held when its multiplier was frozen, hence held at the trial too."""
+        fe = ti.cast(0.0, float)
+        if self.lam[i] > 0:
+            fe, _fg, _fh = self._friction(disp, self.trial_normal[i], self.lam[i], eps)
+        return fe
+
+    @ti.func
+    def accept(self, i):
+        """The trial point was accepted: its holds and normals become the current ones."""
+        self.active[i] = self.trial_active[i]
+        self.normal[i] = self.trial_normal[i]
+
+    @ti.func
+    def filter(self, i, q):
+        """q without its normal component if particle i is held (Baraff & Witkin 1998, Sec. 5.3)."""
+        out = q
+        if self.active[i]:
+            out = q - self.normal[i].dot(q) * self.normal[i]
+        return out
+
+    @ti.func
+    def bounce(self, i, vi, xi, vi_prev):
+        """Velocity change [m/s] restitution asks for particle i at xi with solved velocity vi
+        (``vi_prev``: its velocity at the step's start): a held particle, or one the step left inside
+        the terrain's skin (``epsilon``) approaching faster than the bounce threshold.
 
         A held particle approached with its velocity at the start of the step (its solved normal
         velocity is about 0); below the bounce threshold it keeps what the solve gave it. A skin
@@ -174,7 +246,7 @@ class ContactSet:
         if self.active[i] and self._free(i):
             nrm = self.normal[i]
             vn = nrm.dot(vi)
-            approach = nrm.dot(self.v_prev[i])
+            approach = nrm.dot(vi_prev)
             if skin:
                 approach = vn
             if -approach > t.bounce_threshold[None]:
@@ -191,17 +263,3 @@ class ContactSet:
                             vt_new = vt * ti.max(0.0, 1.0 - t.friction[None] * dvn / sl)
                     delta = (vt_new - vt) + dvn * nrm
         return delta
-
-    @ti.func
-    def _bounce_scale(self, budget):
-        """Largest s in [0, 1] with sum 1/2 m |v + s dv|^2 - 1/2 m |v|^2 = A s^2 + B s <= budget [J]."""
-        a = self.sc.bounce_a[None]
-        b = self.sc.bounce_b[None]
-        s = ti.cast(1.0, float)
-        if a > 0 and a + b > budget:
-            disc = b * b + 4.0 * a * budget
-            s = 0.0
-            if disc >= 0:
-                s = ti.min(1.0, ti.max(0.0, (-b + ti.sqrt(disc)) / (2.0 * a)))
-            self.sc.bounce_limited[None] = 1
-        return s

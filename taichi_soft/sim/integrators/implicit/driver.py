@@ -3,7 +3,7 @@
 A step (docs/implicit.md):
 
 1. ``_begin_step``: save (x_n, v_n), freeze damper directions, predict y, choose the start
-   direction (contact.py) and measure the energy the step begins with.
+   direction (the terrain contact part, contact.py) and measure the energy the step begins with.
 2. Reference and feasible start: g(x_n) (a trial at alpha = 0), then a line search from x_n
    along the start direction, beginning at the largest
    feasible fraction ``sc.t_max``, accepting the first fraction with g <= g(x_n) (at most
@@ -28,7 +28,7 @@ from ...linalg import PCG
 from ...model import CHANGED_MASSES
 from ..base import Integrator
 from .accounts import StepAccounts
-from .contact import ContactSet
+from .contact import TerrainContact
 from .objective import Objective
 from .options import ImplicitConfig
 from .pairs import PairContacts
@@ -40,8 +40,7 @@ from .walk import CG_DIRECTION, STEP, InKernel, Launches
 
 
 @ti.data_oriented
-class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEnd, StepAccounts,
-                         Integrator):
+class ImplicitIntegrator(Objective, SpreadBounce, StepScheme, StepEnd, StepAccounts, Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
@@ -60,28 +59,31 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     implicit = True
     order = 1
     force_evals = 0
-    # No force-pass buffers. Its parts' tables (Objective, ContactSet, SpreadBounce, StepScheme) and
-    # this one; besides them the model's adjacency and the PCG's table (linalg.PCG).
+    # No force-pass buffers. Its mixins' tables (Objective, SpreadBounce, StepScheme) and this one;
+    # besides them the model's adjacency and its parts' tables: the PCG's (linalg.PCG) and the
+    # terrain contact's (contact.py).
     BUFFERS = {
         "v_new": per_particle("velocity from the solve [m/s]", VEC),
         "dv": per_particle("restitution's velocity change [m/s]", VEC),
     }
-    FIELDS = ADJACENCY + FieldCounts.of(PCG.BUFFERS)
+    FIELDS = ADJACENCY + FieldCounts.of(PCG.BUFFERS) + FieldCounts.of(TerrainContact.BUFFERS)
     Config = ImplicitConfig  # each solver's own extends it (options.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
     IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
 
     def __init__(self, model, terrain, options=None, contacts=None):
+        # The parts, allocated before the base class's fields (one pending SNode tree for all).
+        # The step's scalars: f64 whatever the precision: their sums run over every particle
+        # (objective, residual, energies), and in f32 a sum over 10^5-10^7 terms lost the line
+        # search's decrease and the energy balance to round-off (a large body froze:
+        # docs/implicit.md, "Precision").
+        self.sc = step_scalars()
         self.pcg = PCG(model.n_particles)  # every linear solve of the step (walk.py's ``cg``)
+        self.contact = TerrainContact(model, terrain, self.sc)  # held particles, friction, bounce
         super().__init__(model, terrain, options, contacts)
         self._init_objective(model)
-        self._init_contact()
         self._init_scheme(self.options.scheme == "bdf2")
         o = self.options
-        # f64 whatever the precision: its sums run over every particle (objective, residual, energies),
-        # and in f32 a sum over 10^5-10^7 terms lost the line search's decrease and the energy
-        # balance to round-off (a large body froze: docs/implicit.md, "Precision").
-        self.sc = step_scalars()
         self._counters = counters(self.sc)
         self.acc = accounts(STEP_ACCOUNTS)
         self.res_history = ti.field(float, RES_HISTORY)  # residual [m/s^2] per gradient of the last step
@@ -114,7 +116,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         self.velocity_tol[None] = o.velocity_tol
         # The energy account assumes no pinned particle does work on the body.
         self.clamp_on[None] = int(o.energy_clamp and not np.any(model.mass_np <= 0))
-        self.release_tol[None] = max(o.residual_tol, 0.1)
+        self.contact.release_tol[None] = max(o.residual_tol, 0.1)
         self._masses_changed = True  # (notify_model_changed) total mass and translation test to refresh
         self.in_kernel = self.IN_KERNEL(self)  # the serial driver's phases
         self.launches = self.LAUNCHES(self)  # the parallel driver's
@@ -152,8 +154,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         if not self._free(i):
             out = ti.Vector.zero(float, 3)
         elif ti.static(self.terrain.has_contact):
-            if self.active[i]:
-                out = q - self.normal[i].dot(q) * self.normal[i]
+            out = self.contact.filter(i, q)
         return out
 
     @ti.func
@@ -165,9 +166,9 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
         if self._free(i):
             held = 0
             if ti.static(self.terrain.has_contact):
-                held = self.active[i]
+                held = self.contact.active[i]
             if held:
-                nrm = self.normal[i]
+                nrm = self.contact.normal[i]
                 sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
                 pinv = sp @ (sp @ block @ sp + nrm.outer_product(nrm)).inverse() @ sp
             else:
@@ -210,16 +211,14 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
                 mi = m.mass[i]
                 self.sc.k_start[None] += 0.5 * mi * v[i].dot(v[i])
                 if ti.static(self.terrain.has_contact):
-                    d = self._start_direction(i, xi, d, he)
+                    d = self.contact.start(i, xi, d, he)
                 self.dx[i] = d
             else:
                 self.u[i] = d
                 x[i] = xi + d  # pinned: moves with its own velocity, never solved for
                 self.dx[i] = ti.Vector.zero(float, 3)
                 if ti.static(self.terrain.has_contact):
-                    self.active[i] = 0
-                    self.lam[i] = 0.0
-                    self.lam_end[i] = 0.0
+                    self.contact.release(i)
         if ti.static(self._has_pairs()):
             self.pairs.begin(self.x_prev, self.yd, self.dx, self.u)
         for c in ti.static(self._counters):
@@ -268,8 +267,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
                 x[i] = self.x_trial[i]
                 self.u[i] = self.u_trial[i]
                 if ti.static(self.terrain.has_contact):
-                    self.active[i] = self.trial_active[i]
-                    self.normal[i] = self.trial_normal[i]
+                    self.contact.accept(i)
         phase = self.sc.phase[None]
         if ok:
             self.sc.f_cur[None] = self.sc.f_trial[None]
@@ -373,8 +371,7 @@ class ImplicitIntegrator(Objective, ContactSet, SpreadBounce, StepScheme, StepEn
     def reset(self):
         super().reset()
         self.acc.fill(0)
-        self.lam.fill(0)
-        self.lam_end.fill(0)  # no warm start from before the reset
+        self.contact.reset()  # no warm start from before the reset
         if self.pairs is not None:
             self.pairs.reset()
         self.n_history[None] = 0

@@ -30,7 +30,7 @@ def lagged_friction(disp, nrm, c, eps):
     """Lagged Coulomb friction of a displacement ``disp`` [m] against a contact of normal ``nrm``:
     (energy [kg m^2], gradient [kg m], Hessian [kg]) of c f0(|u_t|), u_t = (I - N N^T) disp,
     c = mu lam [kg m] (lam = h^2 |F_n| frozen), f0 the Huber function: quadratic below ``eps`` =
-    friction_velocity * h [m], linear beyond. The terrain's contacts (``_friction``) and the
+    friction_velocity * h [m], linear beyond. The terrain's contacts (contact.py) and the
     pairs between bodies (pairs.py) both use it."""
     tp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
     u = tp @ disp
@@ -90,20 +90,6 @@ class Objective:
         return self.model.inv_mass[i] > 0
 
     @ti.func
-    def _friction(self, i, xi, nrm, lam):
-        """Friction term of a held particle at xi: (energy [kg m^2], gradient [kg m], Hessian [kg]).
-
-        mu lam f0(|u_t|), u_t = (I - N N^T)(xi - x_n), f0 the Huber function (|u_t| beyond eps =
-        friction_velocity * h, quadratic below): the gradient is mu lam u_t/|u_t|, Coulomb's bound
-        mu |F_n| times h^2. Beyond eps the Hessian is that of the quadratic majorant
-        c |u|^2 / (2 |u_t|) + c |u_t| / 2 (iteratively reweighted least squares): a Newton step then
-        never carries the particle past the point where friction stops it, which the exact Hessian,
-        with no curvature along u_t, would; it is PSD and continuous at eps.
-        """
-        return lagged_friction(xi - self.x_prev[i] - self.u_base[i], nrm, self.terrain.friction[None] * lam,
-                               self.fric_eps[None])
-
-    @ti.func
     def _spring_terms(self, x: ti.template(), s, dt):
         """(gradient of h^2 (E + D) w.r.t. end a [kg m], h^2 E_s Hessian block + h kd l l^T [kg])."""
         m = self.model
@@ -119,7 +105,7 @@ class Objective:
     def _gradient(self, x: ti.template(), dt):
         """grad g(x), the filtered residual ``rhs`` and its norm (``sc.res2``), from one pass over springs
         and one gather per particle. The contact active set (hold, release, multipliers) is updated
-        per particle by ``_contact_gradient`` (contact.py). The same passes store what the solver's
+        per particle by the terrain contact part (``contact.gradient``, contact.py). The same passes store what the solver's
         linear operator needs (``_store_spring_hessian``, ``_store_preconditioner``): one pass
         instead of a separate Hessian phase halves the serial kernel's compile time."""
         m = self.model
@@ -147,7 +133,8 @@ class Objective:
                 if ti.static(self._has_pairs()):
                     gi += self.pairs.grad[i]
                 if ti.static(self.terrain.has_contact):
-                    gi = self._contact_gradient(i, x[i], gi, dt)
+                    gi, self.fric_hess[i] = self.contact.gradient(
+                        i, x[i] - self.x_prev[i] - self.u_base[i], gi, dt, self.fric_eps[None])
                 if ti.static(self._has_pairs()):
                     # the pairs' diagonal blocks join the terrain friction's (just written)
                     if ti.static(self.terrain.has_contact):
@@ -158,8 +145,8 @@ class Objective:
                     gi = self._grab_gradient(i, x[i], gi, dt)
                 r = -gi
                 if ti.static(self.terrain.has_contact):
-                    if self.active[i]:
-                        r -= self.normal[i].dot(r) * self.normal[i]
+                    if self.contact.active[i]:
+                        r -= self.contact.normal[i].dot(r) * self.contact.normal[i]
                         self.sc.n_active[None] += 1.0
             else:
                 gi = ti.Vector.zero(float, 3)
@@ -170,7 +157,7 @@ class Objective:
 
     @ti.func
     def _trial(self, x: ti.template(), dt):
-        """x_trial = x + alpha dx (alpha = ``sc.alpha``) made feasible (``_project``, contact.py); the
+        """x_trial = x + alpha dx (alpha = ``sc.alpha``) made feasible (``contact.project``); the
         objective there (``sc.f_trial``), its spring energy, grad . (x_trial - x) and the largest move."""
         m = self.model
         alpha = self.sc.alpha[None]
@@ -184,11 +171,11 @@ class Objective:
             ui = self.u[i] + ti.cast(alpha, float) * self.dx[i]
             xi = self.x_prev[i] + ui
             if ti.static(self.terrain.has_contact):
-                xi = self._project(i, xi, alpha > 0)  # alpha = 0: the current point exactly
-                if self.trial_active[i]:  # on the surface: the displacement to the projected point
+                held = 0
+                xi, held = self.contact.project(i, xi, alpha > 0)  # alpha = 0: the current point exactly
+                if held:  # on the surface: the displacement to the projected point
                     ui = xi - self.x_prev[i]
-            else:
-                self.x_trial[i] = xi
+            self.x_trial[i] = xi
             self.u_trial[i] = ui
             if self._free(i):
                 if ti.static(self._has_pairs()):
@@ -200,9 +187,8 @@ class Objective:
                     self.sc.f_trial[None] += gv
                     self.sc.e_trial[None] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
-                    if self.lam[i] > 0:  # held when lam was frozen, hence held here too
-                        fe, _fg, _fh = self._friction(i, xi, self.trial_normal[i], self.lam[i])
-                        self.sc.f_trial[None] += fe
+                    self.sc.f_trial[None] += self.contact.trial_friction(
+                        i, xi - self.x_prev[i] - self.u_base[i], self.fric_eps[None])
             move = xi - x[i]
             self.sc.dec[None] += self.grad[i].dot(move)
             ti.atomic_max(self.sc.step_trial[None], move.norm())

@@ -1,6 +1,6 @@
 """Restitution carried by the springs: the bounce as an implicit velocity step of the whole body.
 
-``contact._bounce`` asks every held particle that hit the terrain faster than the
+``TerrainContact.bounce`` (contact.py) asks every held particle that hit the terrain faster than the
 ``bounce_threshold`` for a normal velocity change dv_N (to ``restitution`` times its approach
 speed). Given to those particles alone, after the solve, a stiff body lost it: the held layer
 had stopped the whole body, the bottom layer alone bounced, and the next steps' springs spread its
@@ -23,8 +23,8 @@ as the impact wave would. The solve is the solver's PCG on the filtered system, 
 with a bounce (walk.py). The tangential friction loss of a bounce (``impact_friction``) stays local.
 
 The driver then scales the whole dv by one factor s in [0, 1], the largest for which the kinetic
-energy it adds fits in the energy the step lost (``contact._bounce_scale``): restitution never
-adds energy the step did not have.
+energy it adds fits in the energy the step lost (``StepEnd._bounce_scale``, step_end.py):
+restitution never adds energy the step did not have.
 
 Tried and not kept (issue 22): Poisson's hypothesis, an impulse e times the multiplier the held
 particle took in the step, given to the body through the same operator with the bouncing
@@ -57,8 +57,8 @@ class SpreadBounce:
         returns the part that stays local (the tangential friction loss)."""
         dn = ti.Vector.zero(float, 3)
         if ti.static(self.terrain.has_contact):
-            if self.active[i]:
-                nrm = self.normal[i]
+            if self.contact.active[i]:
+                nrm = self.contact.normal[i]
                 dn = nrm.dot(delta) * nrm
                 if dn.norm_sqr() > 0:
                     self.sc.n_bounce[None] += 1.0

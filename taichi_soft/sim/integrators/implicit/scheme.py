@@ -100,5 +100,5 @@ class StepScheme:
             if ti.static(self.terrain.has_contact):
                 if self._free(i):
                     d, _n = self.terrain.query(i, x[i])
-                    if self.active[i] or d < self.terrain.epsilon[None]:
+                    if self.contact.active[i] or d < self.terrain.epsilon[None]:
                         self.history_ok[None] = 0

@@ -28,7 +28,7 @@ class StepEnd:
             vi = (self.u[i] - self.u_base[i]) / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
-                delta = self._bounce_split(i, self._bounce(i, vi, x[i]))
+                delta = self._bounce_split(i, self.contact.bounce(i, vi, x[i], self.v_prev[i]))
             if ti.static(self._has_pairs()):
                 delta += self.pairs.dv[i]
             self.v_new[i] = vi
@@ -75,3 +75,16 @@ class StepEnd:
         self._record_history(x, v)
         self._account()
 
+    @ti.func
+    def _bounce_scale(self, budget):
+        """Largest s in [0, 1] with sum 1/2 m |v + s dv|^2 - 1/2 m |v|^2 = A s^2 + B s <= budget [J]."""
+        a = self.sc.bounce_a[None]
+        b = self.sc.bounce_b[None]
+        s = ti.cast(1.0, float)
+        if a > 0 and a + b > budget:
+            disc = b * b + 4.0 * a * budget
+            s = 0.0
+            if disc >= 0:
+                s = ti.min(1.0, ti.max(0.0, (-b + ti.sqrt(disc)) / (2.0 * a)))
+            self.sc.bounce_limited[None] = 1
+        return s
