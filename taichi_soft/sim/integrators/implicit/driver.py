@@ -32,7 +32,7 @@ from .contact import TerrainContact
 from .objective import Objective
 from .options import ImplicitConfig
 from .pairs import PairContacts
-from .restitution import SpreadBounce
+from .restitution import BOUNCE_CG_TOL, BounceSpread
 from .scalars import RES_HISTORY, START_HALVINGS, STEP_ACCOUNTS, accounts, counters, step_scalars
 from .scheme import StepScheme
 from .step_end import StepEnd
@@ -40,7 +40,7 @@ from .walk import CG_DIRECTION, STEP, InKernel, Launches
 
 
 @ti.data_oriented
-class ImplicitIntegrator(Objective, SpreadBounce, StepScheme, StepEnd, StepAccounts, Integrator):
+class ImplicitIntegrator(Objective, StepScheme, StepEnd, StepAccounts, Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
@@ -59,14 +59,15 @@ class ImplicitIntegrator(Objective, SpreadBounce, StepScheme, StepEnd, StepAccou
     implicit = True
     order = 1
     force_evals = 0
-    # No force-pass buffers. Its mixins' tables (Objective, SpreadBounce, StepScheme) and this one;
-    # besides them the model's adjacency and its parts' tables: the PCG's (linalg.PCG) and the
-    # terrain contact's (contact.py).
+    # No force-pass buffers. Its mixins' tables (Objective, StepScheme) and this one; besides them
+    # the model's adjacency and its parts' tables: the PCG's (linalg.PCG), the terrain contact's
+    # (contact.py) and the restitution spread's (restitution.py).
     BUFFERS = {
         "v_new": per_particle("velocity from the solve [m/s]", VEC),
         "dv": per_particle("restitution's velocity change [m/s]", VEC),
     }
-    FIELDS = ADJACENCY + FieldCounts.of(PCG.BUFFERS) + FieldCounts.of(TerrainContact.BUFFERS)
+    FIELDS = ADJACENCY + FieldCounts.of(PCG.BUFFERS) + FieldCounts.of(TerrainContact.BUFFERS) \
+        + FieldCounts.of(BounceSpread.BUFFERS)
     Config = ImplicitConfig  # each solver's own extends it (options.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
     IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
@@ -80,6 +81,7 @@ class ImplicitIntegrator(Objective, SpreadBounce, StepScheme, StepEnd, StepAccou
         self.sc = step_scalars()
         self.pcg = PCG(model.n_particles)  # every linear solve of the step (walk.py's ``cg``)
         self.contact = TerrainContact(model, terrain, self.sc)  # held particles, friction, bounce
+        self.spread = BounceSpread(model.n_particles, self.contact, self.sc)  # restitution through the body
         super().__init__(model, terrain, options, contacts)
         self._init_objective(model)
         self._init_scheme(self.options.scheme == "bdf2")
@@ -324,6 +326,12 @@ class ImplicitIntegrator(Objective, SpreadBounce, StepScheme, StepEnd, StepAccou
     @ti.func
     def _set_cg_tol(self, tol):
         self.pcg.rel_tol[None] = tol
+
+    @ti.func
+    def _bounce_rhs(self):
+        """The restitution spread's system (restitution.py), solved to ``BOUNCE_CG_TOL``."""
+        self.spread.set_rhs(self)
+        self.pcg.rel_tol[None] = BOUNCE_CG_TOL
 
     @ti.func
     def _after_direction(self):

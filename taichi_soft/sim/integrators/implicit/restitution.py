@@ -35,6 +35,7 @@ multiplier misses the momentum the step's end velocity still carries: a 4^3 cube
 
 import taichi as ti
 
+from ...allocation import allocate
 from ...footprint import VEC, per_particle
 
 
@@ -42,41 +43,55 @@ BOUNCE_CG_TOL = 1e-3  # relative PCG residual of the restitution solve (it runs 
 
 
 @ti.data_oriented
-class SpreadBounce:
-    """Mixin of ``ImplicitIntegrator``: restitution as a velocity step through the body."""
+class BounceSpread:
+    """Restitution as a velocity step through the body: a part of ``ImplicitIntegrator``.
+
+    Inputs, given at construction: the particle count, the terrain contact part (``contact``:
+    which particles are held, their normals) and the step's scalars ``sc`` (it counts
+    ``n_bounce``); per call, the restitution a particle asks for and the linear operator (the
+    solver: ``apply``). Outputs: ``rhs`` (the system the driver solves by PCG into ``response``) and
+    each particle's whole velocity change (``total``).
+    """
 
     BUFFERS = {
-        "bounce_n": per_particle("prescribed normal velocity change dv_N N [m/s]", VEC),
-        "bounce_rhs": per_particle("-(A dv_N N), filtered [kg m/s]", VEC),
-        "bounce_dv": per_particle("response of the free components [m/s]", VEC),
+        "prescribed": per_particle("prescribed normal velocity change dv_N N [m/s]", VEC),
+        "rhs": per_particle("-(A dv_N N), filtered [kg m/s]", VEC),
+        "response": per_particle("response of the free components [m/s]", VEC),
     }
 
+    def __init__(self, n: int, contact, sc):
+        """Allocates the fields only (no write: the owner's pending SNode tree stays open)."""
+        self.n = n
+        self.contact = contact
+        self.sc = sc
+        allocate(self, self.BUFFERS, n, 0)
+
     @ti.func
-    def _bounce_split(self, i, delta):
+    def split(self, i, delta):
         """Record the normal part of held particle i's restitution ``delta`` [m/s] as prescribed;
         returns the part that stays local (the tangential friction loss)."""
         dn = ti.Vector.zero(float, 3)
-        if ti.static(self.terrain.has_contact):
-            if self.contact.active[i]:
-                nrm = self.contact.normal[i]
-                dn = nrm.dot(delta) * nrm
-                if dn.norm_sqr() > 0:
-                    self.sc.n_bounce[None] += 1.0
-        self.bounce_n[i] = dn
+        if self.contact.active[i]:
+            nrm = self.contact.normal[i]
+            dn = nrm.dot(delta) * nrm
+            if dn.norm_sqr() > 0:
+                self.sc.n_bounce[None] += 1.0
+        self.prescribed[i] = dn
         return delta - dn
 
     @ti.func
-    def _bounce_rhs(self):
-        """rhs = -A (dv_N N), filtered: the free components' share of the prescribed change."""
-        self.apply(self.bounce_n, self.bounce_rhs)
+    def set_rhs(self, op: ti.template()):
+        """rhs = -A (dv_N N), filtered (A: ``op.apply``): the free components' share of the
+        prescribed change."""
+        op.apply(self.prescribed, self.rhs)
         for i in range(self.n):
-            self.bounce_rhs[i] = -self.bounce_rhs[i]
-        self.pcg.rel_tol[None] = BOUNCE_CG_TOL
+            self.rhs[i] = -self.rhs[i]
 
     @ti.func
-    def _bounce_total(self, i):
-        """Particle i's whole restitution velocity change [m/s] (after the spread: walk.py)."""
-        dv = self.dv[i] + self.bounce_n[i]
+    def total(self, i, local):
+        """Particle i's whole restitution velocity change [m/s] (after the spread, walk.py): its
+        ``local`` part, the prescribed normal change and the response through the body."""
+        dv = local + self.prescribed[i]
         if self.sc.n_bounce[None] > 0:
-            dv += self.bounce_dv[i]
+            dv += self.response[i]
         return dv

@@ -28,7 +28,7 @@ class StepEnd:
             vi = (self.u[i] - self.u_base[i]) / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
-                delta = self._bounce_split(i, self.contact.bounce(i, vi, x[i], self.v_prev[i]))
+                delta = self.spread.split(i, self.contact.bounce(i, vi, x[i], self.v_prev[i]))
             if ti.static(self._has_pairs()):
                 delta += self.pairs.dv[i]
             self.v_new[i] = vi
@@ -48,7 +48,7 @@ class StepEnd:
             self.sc.bounce_a[None] = 0.0
             self.sc.bounce_b[None] = 0.0
             for i in range(self.n):
-                delta = self._bounce_total(i)
+                delta = self.spread.total(i, self.dv[i])
                 self.dv[i] = delta
                 if self._free(i):
                     self.sc.bounce_a[None] += 0.5 * m.mass[i] * delta.dot(delta)

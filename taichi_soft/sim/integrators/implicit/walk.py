@@ -64,7 +64,7 @@ def _step(integ, ph, x, v, dt, step):
     if ti.static(integ.terrain.has_contact):
         if integ.sc.n_bounce[None] > 0:  # restitution carried by the springs (restitution.py)
             ph.bounce_rhs()
-            ph.cg(integ.bounce_rhs, integ.bounce_dv)
+            ph.cg(integ.spread.rhs, integ.spread.response)
     ph.end_finish(x, v, step)
 
 
