@@ -22,8 +22,11 @@ def flaky(marker):
     return "second attempt"
 
 
-def slow(seconds, marker):
-    """Sleeps, then leaves ``marker``: a cancelled task never gets to write it."""
+def slow(seconds, marker, started=None):
+    """Leaves ``started`` (if given), sleeps, then leaves ``marker``: a cancelled task never gets
+    to write it."""
+    if started:
+        Path(started).write_text(str(os.getpid()))
     time.sleep(seconds)
     Path(marker).write_text("finished")
     return "slow"

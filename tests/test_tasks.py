@@ -2,8 +2,6 @@
 the same sweep results from 1 or 2 local processes and from a Dask LocalCluster."""
 import _thread
 import signal
-import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -36,37 +34,53 @@ def test_results_come_back_in_task_order_and_a_failure_is_retried_once_then_repo
     assert not out.ok and not out.interrupted
 
 
+class _CtrlCOnceBusy(LocalExecutor):
+    """A local executor whose client gets Ctrl-C while it waits for results, at the first wait
+    after ``ready()`` holds: what a SIGINT does to the main thread (Python's handler raises
+    KeyboardInterrupt there), at a moment chosen by events, not by a delay."""
+
+    def __init__(self, workers, ready):
+        super().__init__(workers)
+        self.ready = ready
+        self.interrupted_at = None
+
+    def wait(self, futures, timeout):
+        if self.interrupted_at is None and self.ready():
+            self.interrupted_at = len(futures)
+            _thread.interrupt_main()  # raises KeyboardInterrupt at once, in this (the main) thread
+        return LocalExecutor.wait(futures, timeout)
+
+
 def test_ctrl_c_cancels_running_tasks_and_keeps_finished_ones(helpers_on_path, tmp_path):
+    started, finished = tmp_path / "slow-started", tmp_path / "slow"
     jobs = [Task("quick", "task_helpers:square", {"x": 3}),
-            Task("slow", "task_helpers:slow", {"seconds": 60, "marker": str(tmp_path / "slow")})]
-    ex = LocalExecutor(2)
+            Task("slow", "task_helpers:slow", {"seconds": 600, "marker": str(finished), "started": str(started)})]
+    done = []
+    # Ctrl-C once the quick task's result is in and the slow one is running in its process.
+    ex = _CtrlCOnceBusy(2, ready=lambda: done == ["quick"] and started.exists())
     # Python's own SIGINT handler, as in a terminal: a process started in the background by a
     # non-interactive shell inherits SIGINT ignored, and interrupt_main() then does nothing.
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    timer = threading.Timer(2.0, _thread.interrupt_main)  # what Ctrl-C does to the main thread
-    start = time.perf_counter()
-    timer.start()
     try:
-        out = run_tasks(jobs, ex, bar=False)
+        out = run_tasks(jobs, ex, bar=False, on_result=lambda key, result: done.append(key) or result)
     finally:
-        timer.cancel()
         ex.close()
         signal.signal(signal.SIGINT, previous)
+    assert ex.interrupted_at == 1  # the slow task was in flight when Ctrl-C came
     assert out.interrupted and out.results == {"quick": 9} and not out.failed
-    assert time.perf_counter() - start < 15, "the slow task's process was not killed"
-    assert not (tmp_path / "slow").exists()
+    # Its process was killed, not waited for (it would have slept 600 s and left ``finished``):
+    # no process is left in the executor's table, and the task never finished.
     assert not tasks._live
+    assert not finished.exists()
 
 
 def test_unreachable_scheduler_is_refused_with_exit_2_in_a_few_seconds(capsys, tmp_path):
     from taichi_soft import cli
 
-    start = time.perf_counter()
     code = cli.main(["bench", "stability", "--quick", "--out", str(tmp_path / "b"), "--scheduler", "tcp://127.0.0.1:9"])
-    took = time.perf_counter() - start
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "--scheduler tcp://127.0.0.1:9" in err[0], err
-    assert took < tasks.CONNECT_TIMEOUT_S + 5
+    assert f"within {tasks.CONNECT_TIMEOUT_S:g} s" in err[0], err  # gave up after its connect timeout
     assert not (tmp_path / "b").exists() or not any((tmp_path / "b").iterdir())
 
 
