@@ -24,7 +24,7 @@ class StepAccounts:
         self.acc.clamped[None] += ti.cast(self.sc.clamped[None], ti.f64)
         self.acc.bounce[None] += ti.cast(self.sc.bounce_limited[None], ti.f64)
         self.acc.lb_restarts[None] += ti.cast(self.sc.lb_restarts[None], ti.f64)
-        self.acc.bdf2[None] += ti.cast(self.bdf2_step[None], ti.f64)
+        self.acc.bdf2[None] += ti.cast(self.scheme.bdf2_step[None], ti.f64)
         if self.sc.ls_failed[None]:
             self.acc.failed[None] += 1.0
             self.acc.failed_res[None] = ti.max(self.acc.failed_res[None], ti.cast(self._residual(), ti.f64))

@@ -40,7 +40,7 @@ from .walk import CG_DIRECTION, STEP, InKernel, Launches
 
 
 @ti.data_oriented
-class ImplicitIntegrator(Objective, StepScheme, StepEnd, StepAccounts, Integrator):
+class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
@@ -59,15 +59,15 @@ class ImplicitIntegrator(Objective, StepScheme, StepEnd, StepAccounts, Integrato
     implicit = True
     order = 1
     force_evals = 0
-    # No force-pass buffers. Its mixins' tables (Objective, StepScheme) and this one; besides them
-    # the model's adjacency and its parts' tables: the PCG's (linalg.PCG), the terrain contact's
-    # (contact.py) and the restitution spread's (restitution.py).
+    # No force-pass buffers. Its mixin's table (Objective) and this one; besides them the model's
+    # adjacency and its parts' tables: the PCG's (linalg.PCG), the terrain contact's (contact.py),
+    # the restitution spread's (restitution.py) and the scheme's (scheme.py).
     BUFFERS = {
         "v_new": per_particle("velocity from the solve [m/s]", VEC),
         "dv": per_particle("restitution's velocity change [m/s]", VEC),
     }
     FIELDS = ADJACENCY + FieldCounts.of(PCG.BUFFERS) + FieldCounts.of(TerrainContact.BUFFERS) \
-        + FieldCounts.of(BounceSpread.BUFFERS)
+        + FieldCounts.of(BounceSpread.BUFFERS) + FieldCounts.of(StepScheme.BUFFERS)
     Config = ImplicitConfig  # each solver's own extends it (options.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
     IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
@@ -82,9 +82,9 @@ class ImplicitIntegrator(Objective, StepScheme, StepEnd, StepAccounts, Integrato
         self.pcg = PCG(model.n_particles)  # every linear solve of the step (walk.py's ``cg``)
         self.contact = TerrainContact(model, terrain, self.sc)  # held particles, friction, bounce
         self.spread = BounceSpread(model.n_particles, self.contact, self.sc)  # restitution through the body
+        self.scheme = StepScheme(model, terrain, self.sc, self.contact)  # backward Euler or BDF2, per step
         super().__init__(model, terrain, options, contacts)
         self._init_objective(model)
-        self._init_scheme(self.options.scheme == "bdf2")
         o = self.options
         self._counters = counters(self.sc)
         self.acc = accounts(STEP_ACCOUNTS)
@@ -105,6 +105,7 @@ class ImplicitIntegrator(Objective, StepScheme, StepEnd, StepAccounts, Integrato
         self.energy_tol = ti.field(float, ())  # relative energy growth counted as round-off
         # Values only after every field is allocated: the first write closes the pending SNode
         # tree, and the next field would open another (the runtime holds 512: allocation.MAX_TREES).
+        self.scheme.use_bdf2(o.scheme == "bdf2")
         self.tol_acc[None] = o.residual_tol
         self.roundoff[None] = 16 * np.finfo(model.real).eps
         self.energy_tol[None] = 1e3 * np.finfo(model.real).eps
@@ -183,8 +184,9 @@ class ImplicitIntegrator(Objective, StepScheme, StepEnd, StepAccounts, Integrato
         """Start a step of h = dt: the scheme (scheme.py) sets yd, u_base and h_eff, the step every
         term of the objective uses (h, or 2 h / 3 for BDF2)."""
         m = self.model
-        self._choose_scheme(x, v, dt)
-        he = self.h_eff[None]
+        self.scheme.choose(x, v, dt, self.x_prev, self.v_prev, self.yd,
+                           ti.static(self._has_pairs() or self.model.has_grab()))
+        he = self.scheme.h_eff[None]
         self.sc.h2_prev[None] = self.h2[None]  # the multipliers kept in lam are for this h^2
         self.h2[None] = he * he
         self.tol2[None] = (self.tol_acc[None] * he * he) ** 2 * self.total_mass[None]
@@ -195,7 +197,7 @@ class ImplicitIntegrator(Objective, StepScheme, StepEnd, StepAccounts, Integrato
             # alone would make it first order.
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             d = x[a] - x[b]
-            if self.bdf2_step[None]:
+            if self.scheme.bdf2_step[None]:
                 d += self.yd[a] - self.yd[b]
             length = d.norm()
             self.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
@@ -383,7 +385,7 @@ class ImplicitIntegrator(Objective, StepScheme, StepEnd, StepAccounts, Integrato
         if self.pairs is not None:
             self.pairs.reset()
         self.n_history[None] = 0
-        self.history_ok[None] = 0  # BDF2 starts its history again
+        self.scheme.reset()  # BDF2 starts its history again
 
     def residual(self) -> float:
         """Residual [m/s^2] of the last gradient evaluation (see ``_residual``)."""

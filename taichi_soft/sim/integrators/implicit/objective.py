@@ -97,7 +97,8 @@ class Objective:
         grp = m.spring_group[s]
         ge, he = spring_energy_derivatives(m, x, a, b, m.spring_rest[s], grp)
         l = self.spring_dir[s]
-        u = (self.u[a] - self.u_base[a]) - (self.u[b] - self.u_base[b])  # h_e times the end velocity
+        ub = ti.static(self.scheme.u_base)
+        u = (self.u[a] - ub[a]) - (self.u[b] - ub[b])  # h_e times the end velocity
         kd = m.group_kd[grp]
         return dt * dt * ge + (dt * kd * l.dot(u)) * l, dt * dt * he + (dt * kd) * l.outer_product(l)
 
@@ -134,7 +135,7 @@ class Objective:
                     gi += self.pairs.grad[i]
                 if ti.static(self.terrain.has_contact):
                     gi, self.fric_hess[i] = self.contact.gradient(
-                        i, x[i] - self.x_prev[i] - self.u_base[i], gi, dt, self.fric_eps[None])
+                        i, x[i] - self.x_prev[i] - self.scheme.u_base[i], gi, dt, self.fric_eps[None])
                 if ti.static(self._has_pairs()):
                     # the pairs' diagonal blocks join the terrain friction's (just written)
                     if ti.static(self.terrain.has_contact):
@@ -188,14 +189,15 @@ class Objective:
                     self.sc.e_trial[None] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
                     self.sc.f_trial[None] += self.contact.trial_friction(
-                        i, xi - self.x_prev[i] - self.u_base[i], self.fric_eps[None])
+                        i, xi - self.x_prev[i] - self.scheme.u_base[i], self.fric_eps[None])
             move = xi - x[i]
             self.sc.dec[None] += self.grad[i].dot(move)
             ti.atomic_max(self.sc.step_trial[None], move.norm())
         for s in range(m.n_springs):
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             grp = m.spring_group[s]
-            u = (self.u_trial[a] - self.u_base[a]) - (self.u_trial[b] - self.u_base[b])
+            ub = ti.static(self.scheme.u_base)
+            u = (self.u_trial[a] - ub[a]) - (self.u_trial[b] - ub[b])
             lu = self.spring_dir[s].dot(u)
             es = spring_energy(m, self.x_trial, a, b, m.spring_rest[s], grp)
             self.sc.e_trial[None] += es

@@ -29,12 +29,21 @@ as before, and the first step after any of these events starts BDF2's history ag
 
 import taichi as ti
 
+from ...allocation import allocate
 from ...footprint import VEC, per_particle
 
 
 @ti.data_oriented
 class StepScheme:
-    """Mixin of ``ImplicitIntegrator``: chooses each step's scheme and predictor."""
+    """Each step's scheme and predictor: a part of ``ImplicitIntegrator``.
+
+    Inputs, given at construction: the ``model`` (gravity, pinned particles), the ``terrain`` (the
+    history's contact tests), the step's scalars ``sc`` (it writes ``dt_step``; it reads
+    ``n_bounce`` and ``clamped`` at the step's end) and the terrain contact part (which particles
+    the step left held); per step, the state and the objective's x_n, v_n and target buffers.
+    Outputs: ``u_base``, ``h_eff`` and ``bdf2_step`` (read by the objective, the driver and the
+    step's end) and the target ``yd`` it writes into the objective's buffer.
+    """
 
     BUFFERS = {
         "u_base": per_particle("x^ - x_n (0 for backward Euler) [m]", VEC),
@@ -42,32 +51,54 @@ class StepScheme:
         "v_end": per_particle("velocity the last step left [m/s]", VEC),
     }
 
-    def _init_scheme(self, bdf2: bool):
+    def __init__(self, model, terrain, sc, contact):
+        """Allocates the fields only (no write: the owner's pending SNode tree stays open); the
+        option is set by ``use_bdf2``."""
+        self.model = model
+        self.terrain = terrain
+        self.sc = sc
+        self.contact = contact
+        self.n = model.n_particles
+        allocate(self, self.BUFFERS, self.n, 0)
         self.bdf2_on = ti.field(ti.i32, ())  # the option: 1 = BDF2 where the history allows
-        self.bdf2_on[None] = int(bdf2)
         self.history_ok = ti.field(ti.i32, ())  # 1: the last step left a smooth history
         self.bdf2_step = ti.field(ti.i32, ())  # 1: this step is a BDF2 step
         self.dt_last = ti.field(float, ())  # h of the last step [s]
         self.h_eff = ti.field(float, ())  # h (backward Euler) or 2 h / 3 (BDF2) of this step [s]
 
+    def use_bdf2(self, on: bool):
+        """The option ``solver.scheme``: BDF2 where the history allows (True) or backward Euler."""
+        self.bdf2_on[None] = int(on)
+
+    def reset(self):
+        """No history: the next step is backward Euler."""
+        self.history_ok[None] = 0
+
     @ti.func
-    def _choose_scheme(self, x: ti.template(), v: ti.template(), dt):
-        """Decide this step's scheme; write u_base, yd and h_eff. Runs before x_prev/v_prev (the last
-        step's start, x_{n-1} and v_{n-1}) are overwritten. (Loops stay top-level for the parallel
+    def _free(self, i):
+        return self.model.inv_mass[i] > 0
+
+    @ti.func
+    def choose(self, x: ti.template(), v: ti.template(), dt, x_prev: ti.template(), v_prev: ti.template(),
+               yd: ti.template(), backward_euler_only: ti.template()):
+        """Decide this step's scheme; write u_base, h_eff and the target ``yd``. Runs before
+        ``x_prev``/``v_prev`` (the last step's start, x_{n-1} and v_{n-1}) are overwritten.
+        ``backward_euler_only`` (a compile-time constant): the step has terms written for
+        backward Euler only (body-body pairs, a grab). (Loops stay top-level for the parallel
         driver; their iterations only ever clear the flag.)"""
         m = self.model
         he = ti.cast(2.0 / 3.0, float) * dt
         g = m.gravity[None]
         self.bdf2_step[None] = self.bdf2_on[None] * self.history_ok[None] * ti.cast(self.dt_last[None] == dt, ti.i32)
-        if ti.static(self._has_pairs() or m.has_grab()):
+        if ti.static(backward_euler_only):
             self.bdf2_step[None] = 0
         for i in range(self.n):
             if self.bdf2_step[None] and self._free(i):
                 if any(x[i] != self.x_end[i]) or any(v[i] != self.v_end[i]):
                     self.bdf2_step[None] = 0
                 if ti.static(self.terrain.has_contact):
-                    ub = (x[i] - self.x_prev[i]) / 3.0
-                    yb = ub + he * (4.0 * v[i] - self.v_prev[i]) / 3.0 + he * he * g
+                    ub = (x[i] - x_prev[i]) / 3.0
+                    yb = ub + he * (4.0 * v[i] - v_prev[i]) / 3.0 + he * he * g
                     d0, _n0 = self.terrain.query(i, x[i])
                     d1, _n1 = self.terrain.query(i, x[i] + ub)
                     d2, _n2 = self.terrain.query(i, x[i] + yb)
@@ -78,19 +109,19 @@ class StepScheme:
         self.sc.dt_step[None] = dt
         for i in range(self.n):
             if ok and self._free(i):
-                ub = (x[i] - self.x_prev[i]) / 3.0
+                ub = (x[i] - x_prev[i]) / 3.0
                 self.u_base[i] = ub
-                self.yd[i] = ub + he * (4.0 * v[i] - self.v_prev[i]) / 3.0 + he * he * g
+                yd[i] = ub + he * (4.0 * v[i] - v_prev[i]) / 3.0 + he * he * g
             elif self._free(i):
                 self.u_base[i] = ti.Vector.zero(float, 3)
-                self.yd[i] = dt * v[i] + dt * dt * g
+                yd[i] = dt * v[i] + dt * dt * g
             else:
                 # pinned: moves with its own velocity over the true step; v = (u - u_base) / h_eff
-                self.yd[i] = dt * v[i]
+                yd[i] = dt * v[i]
                 self.u_base[i] = (dt - self.h_eff[None]) * v[i]
 
     @ti.func
-    def _record_history(self, x: ti.template(), v: ti.template()):
+    def record(self, x: ti.template(), v: ti.template()):
         """After the step: keep its end state, and whether it leaves a smooth history."""
         self.history_ok[None] = ti.cast(self.sc.n_bounce[None] == 0 and self.sc.clamped[None] == 0, ti.i32)
         self.dt_last[None] = self.sc.dt_step[None]

@@ -25,7 +25,7 @@ class StepEnd:
         if ti.static(self._has_pairs()):
             self.pairs.end(x, dt)
         for i in range(self.n):
-            vi = (self.u[i] - self.u_base[i]) / dt
+            vi = (self.u[i] - self.scheme.u_base[i]) / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
                 delta = self.spread.split(i, self.contact.bounce(i, vi, x[i], self.v_prev[i]))
@@ -72,7 +72,7 @@ class StepEnd:
         for i in range(self.n):
             if f < 1.0 and self._free(i):
                 v[i] *= f
-        self._record_history(x, v)
+        self.scheme.record(x, v)
         self._account()
 
     @ti.func

@@ -34,7 +34,7 @@ class Walk:
 def _step(integ, ph, x, v, dt, step):
     """One step of h = ``dt`` [s] from (x, v), step index ``step`` (the divergence record)."""
     ph.begin(x, v, dt)
-    he = integ.h_eff[None]  # the scheme's h: dt, or 2 dt / 3 for BDF2
+    he = integ.scheme.h_eff[None]  # the scheme's h: dt, or 2 dt / 3 for BDF2
     # Phases 0 (reference at x_n) and 1 (feasible start) are line searches without a direction,
     # so one loop runs all three phases and every phase has a single call site (the serial
     # kernel inlines each call site; fewer sites compile faster).
