@@ -2,14 +2,18 @@
 local/global (``fast_mass_spring``), both minimising the step's objective (docs/implicit.md).
 
 * ``options``: the options of both, typed and documented in one place;
+* ``driver``: the one driver both solvers share and the parts it is built from (the phases are
+  written once in ``walk``: the serial in-kernel and the parallel Python driver sequence the same
+  decision functions, on the step's named scalars, ``scalars``); the step's end and energy
+  account (``step_end``, ``accounts``);
 * ``objective``: inertia, springs, dampers and friction: values and gradient;
-* ``contact``: feasible start, active set with hysteresis, frozen friction, restitution;
-* ``pairs``: contact between bodies (candidate pairs, penalty, friction, restitution);
-* ``driver``: the one driver both solvers share (serial in-kernel and parallel Python loops
-  sequence the same decision functions), the step's energy account;
-* ``laplacian``: the constant matrix M + L and its skyline Cholesky factor;
+* parts given what they read at construction: ``contact`` (the terrain's feasible start, active
+  set with hysteresis, frozen friction and restitution), ``restitution`` (the bounce spread
+  through the body), ``scheme`` (backward Euler or BDF2 per step), ``pairs`` (contact between
+  bodies: candidate pairs, penalty, friction, restitution) and ``laplacian`` (the constant matrix
+  M + L and its skyline Cholesky factor);
 * ``newton``: ``implicit_euler`` (Hessian, PCG operator);
-* ``local_global``: ``fast_mass_spring`` (prefactored global matrix, L-BFGS).
+* ``local_global``: ``fast_mass_spring`` (the global step with the matrix, L-BFGS, ``lbfgs_walk``).
 """
 from .driver import ImplicitIntegrator
 from .laplacian import CHOLESKY_AUTO_MAX

@@ -11,6 +11,7 @@ two-level preconditioner for ``implicit_euler``'s PCG: 3-4x fewer CG iterations,
 
 import taichi as ti
 
+from ...allocation import allocate
 from ...footprint import STATE, Buffers, FieldCounts, per_particle
 from ...linalg import SkylineCholesky
 from ...model import CHANGED_MASSES, CHANGED_SPRINGS
@@ -48,25 +49,37 @@ SCALED_CONTACT_MAX_STIFFNESS = 10.0
 
 @ti.data_oriented
 class LaplacianMatrix:
-    """Mixin of the implicit integrators: the fields of A = M + L and its factorisation, chosen by
-    the ``global_solver`` option."""
+    """A = M + L and its factorisation, chosen by the ``global_solver`` option: a part of
+    ``fast_mass_spring``.
+
+    Inputs, given at construction: the ``model`` (masses, spring groups' k and kd, the spring
+    graph; it listens to the model's changes) and the options it was built for; per ``prepare``,
+    the step dt. Outputs, for the solver's global step: ``diag`` (A's diagonal), ``group_c`` (the
+    off-diagonal weights per spring group), the factor ``chol`` (None without one) and this step's
+    choices ``jacobi_now`` and ``scaled_now``.
+    """
 
     BUFFERS = {"diag": per_particle("diagonal of M + L [kg] (0 for pinned particles)")}
 
     @classmethod
-    def buffers(cls, options, arch, counts, real_bytes):
+    def buffers(cls, options, counts, real_bytes, later: FieldCounts) -> Buffers:
         """The factor (index fields, the envelope's values) when it factorises; and the host bytes
         above the fields while the envelope is sized: the downloaded spring ends (8 bytes per
         spring), their min and max (4 + 4) and per-particle starts (16 bytes), at a moment after the
-        model's fields and before the integrator's own and the state's, so only what exceeds those
-        (counted whatever the choice, as ``auto`` sizes it to choose: 0 for every lattice)."""
-        out = super().buffers(options, arch, counts, real_bytes)
+        model's fields and before the integrator's own (``later``, per particle and spring) and the
+        state's, so only what exceeds those (counted whatever the choice, as ``auto`` sizes it to
+        choose: 0 for every lattice). Its ``BUFFERS`` are the integrator's to count."""
+        out = Buffers(FieldCounts())
         if options.global_solver in FACTORISED:
             out = out + Buffers(CHOLESKY_INDEX, reals=counts.envelope)
-        later = (cls.field_counts() + STATE).bytes(counts.particles, counts.springs, real_bytes)
-        return out + Buffers(transient=max(0, 16 * counts.springs + 16 * counts.particles - later))
+        later_bytes = (later + STATE).bytes(counts.particles, counts.springs, real_bytes)
+        return out + Buffers(transient=max(0, 16 * counts.springs + 16 * counts.particles - later_bytes))
 
-    def _init_laplacian(self, model, global_solver: str, contact_auto: bool):
+    def __init__(self, model, global_solver: str, contact_auto: bool):
+        """Allocates the fields only (no write: the owner's pending SNode tree stays open)."""
+        self.model = model
+        self.n = model.n_particles
+        allocate(self, self.BUFFERS, self.n, 0)
         self.group_c = ti.field(float, model.n_groups)  # Laplacian weight h^2 k + h kd [kg]
         self.factorised = global_solver in FACTORISED  # a compile-time constant
         self.chol = SkylineCholesky(model.n_particles, model.pairs_np) if self.factorised else None
@@ -81,13 +94,18 @@ class LaplacianMatrix:
         # h^2 k_max / m_min > FACTOR_MAX_STIFFNESS). Set with A.
         self.by_stiffness = global_solver == "by_stiffness"  # a compile-time constant
         self.jacobi_now = ti.field(ti.i32, ())
+        model.add_listener(self)
+
+    @ti.func
+    def _free(self, i):
+        return self.model.inv_mass[i] > 0
 
     def notify_model_changed(self, flags: int):
-        super().notify_model_changed(flags)
+        """A stiffness, a damper coefficient or a mass changed: rebuild A at the next ``prepare``."""
         if flags & (CHANGED_SPRINGS | CHANGED_MASSES):
             self._matrix_dt = None
 
-    def _prepare_laplacian(self, dt: float):
+    def prepare(self, dt: float):
         """(Re)build A when dt changed or the model said a stiffness, a damper coefficient or a
         mass did (``notify_model_changed``); factorise it."""
         if float(dt) == self._matrix_dt:
@@ -97,7 +115,7 @@ class LaplacianMatrix:
             self._k_assemble()
             self.chol.factor()
             if not self.chol.ok[None]:
-                raise FloatingPointError(f"{self.name}: the matrix M + L is not positive definite (negative stiffness?)")
+                raise FloatingPointError("fast_mass_spring: the matrix M + L is not positive definite (negative stiffness?)")
         self._matrix_dt = float(dt)
         self.factorizations += 1
 

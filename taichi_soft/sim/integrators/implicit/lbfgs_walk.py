@@ -12,11 +12,11 @@ from .walk import InKernel, Launches, Walk
 def _global_step(integ, ph, x):
     """dx from rhs by the global step alone (the plain local/global iteration's direction)."""
     if ti.static(integ.factorised):
-        if integ.jacobi_now[None]:
+        if integ.matrix.jacobi_now[None]:
             ph.cg(integ.rhs, integ.dx)  # stiff springs (by_stiffness): Jacobi PCG, as pcg
         elif integ.sc.n_active[None] == 0:
             ph.factor_solve(integ.rhs, integ.dx)  # nothing held: the factorisation is exact
-        elif ti.static(integ.scaled_contact) and integ.sc.n_pairs[None] == 0 and integ.scaled_now[None]:
+        elif ti.static(integ.scaled_contact) and integ.sc.n_pairs[None] == 0 and integ.matrix.scaled_now[None]:
             # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry the
             # stiff pair penalty, and local/global then stalled at the velocity test)
             ph.scaled_direction()

@@ -26,30 +26,35 @@ from .options import LocalGlobalConfig
 
 @register
 @ti.data_oriented
-class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
+class FastMassSpring(ImplicitIntegrator):
     """Local/global solver of Liu et al. 2013 on the same objective, prefactorised global matrix."""
 
     name = "fast_mass_spring"
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
     Config = LocalGlobalConfig
     BUFFERS = {"jacobi_inv": per_particle("block-Jacobi inverses of a Jacobi-preconditioned solve [1/kg]", MAT)}
+    FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(LaplacianMatrix.BUFFERS)  # and its matrix's (laplacian.py)
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
     DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (lbfgs_walk.py)
     IN_KERNEL, LAUNCHES = LocalGlobalInKernel, LocalGlobalLaunches
 
     @classmethod
     def buffers(cls, options, arch, counts, real_bytes):
-        """Besides the factor's (``LaplacianMatrix.buffers``): the L-BFGS pairs, 6 reals per particle
-        per pair kept (s, y) and 6 for the iterate and rhs it saves (none with ``history = 0``)."""
+        """Besides the shared ones: the matrix's factor (``LaplacianMatrix.buffers``) and the L-BFGS
+        pairs, 6 reals per particle per pair kept (s, y) and 6 for the iterate and rhs it saves (none
+        with ``history = 0``)."""
         history = options.history
-        return super().buffers(options, arch, counts, real_bytes) + Buffers(FieldCounts(6 * history + 6 if history else 0))
+        return super().buffers(options, arch, counts, real_bytes) \
+            + LaplacianMatrix.buffers(options, counts, real_bytes, cls.field_counts()) \
+            + Buffers(FieldCounts(6 * history + 6 if history else 0))
 
     def __init__(self, model, terrain, options=None, contacts=None):
         n = model.n_particles
         chosen = self.configure(options, *running_target(), model_counts(model))
         solver = chosen.global_solver
         self.global_solver = solver
-        self._init_laplacian(model, solver, contact_auto=chosen.contact_solve == "auto")
+        self.matrix = LaplacianMatrix(model, solver, contact_auto=chosen.contact_solve == "auto")  # A = M + L
+        self.factorised = self.matrix.factorised  # a compile-time constant
         self.scaled_contact = self.factorised and chosen.contact_solve != "pcg"  # compiled in or not
         # The grab's term in the factor (Sherman-Morrison, see _factor_solve): w = A^-1 e_i for
         # the grabbed particle i, solved once per grab and factorisation.
@@ -71,10 +76,10 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         super().__init__(model, terrain, chosen, contacts)  # resolved: nothing left to choose there
 
     def _prepare(self, dt: float):
-        self._prepare_laplacian(dt)
+        self.matrix.prepare(dt)
         if self.grab_in_factor:
             held = self.model.grab.held
-            key = (held, self.factorizations)
+            key = (held, self.matrix.factorizations)
             if key != self._grab_w_key:
                 self._k_grab_column(-1 if held is None else held)
                 self._grab_w_key = key
@@ -92,7 +97,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
                 ok = 1
         if ok:
             z[i] = ti.Vector([1.0, 1.0, 1.0])
-            self.chol.solve(z, z)
+            self.matrix.chol.solve(z, z)
             for j in range(self.n):
                 self.grab_w[j] = z[j][0]
         self.grab_w_for[None] = i if ok else -1
@@ -113,7 +118,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         x = z - w (c z_i) / (1 + c w_i), z = A^-1 b, w = A^-1 e_i. Without it a stiff grab is a
         diagonal term far above the factor's (1e6 N/m at 1/30 s: 1.1e3 kg against ~40 kg), and the
         held-particle path it took reached the iteration cap at residuals of 4e4 m/s^2 for steps."""
-        self.chol.solve(b, x)
+        self.matrix.chol.solve(b, x)
         if ti.static(self.grab_in_factor):
             i = self.grab_w_for[None]
             if i >= 0:
@@ -141,10 +146,11 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     @ti.func
     def apply(self, src: ti.template(), dst: ti.template()):
         m = self.model
+        mat = self.matrix
         for i in range(self.n):
-            q = self.diag[i] * src[i] + self.fric_hess[i] @ src[i]  # friction: not in the factorisation
+            q = mat.diag[i] * src[i] + self.fric_hess[i] @ src[i]  # friction: not in the factorisation
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
-                q -= self.group_c[m.adj_group[e]] * src[m.adj_other[e]]
+                q -= mat.group_c[m.adj_group[e]] * src[m.adj_other[e]]
             dst[i] = self._filter(i, q)
         if ti.static(self._has_pairs()):
             self.pairs.apply(src, dst)
@@ -157,7 +163,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
         ones, docs/implicit.md)."""
         out = 1
         if ti.static(self.factorised):
-            out = self.jacobi_now[None]
+            out = self.matrix.jacobi_now[None]
             if ti.static(self._has_pairs()):
                 if self.sc.n_pairs[None] > 0:
                     out = 1
@@ -166,7 +172,7 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
     @ti.func
     def _jacobi_block(self, i):
         """Particle i's 3x3 diagonal block of A + F [kg]: A's diagonal with its friction and pair blocks."""
-        return self.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+        return self.matrix.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
 
     @ti.func
     def prepare_preconditioner(self):
@@ -336,8 +342,8 @@ class FastMassSpring(LaplacianMatrix, ImplicitIntegrator):
             "line_search_halvings_per_step": a["ls"] / steps,
             "final_residual_m_s2": a["res"] / steps,
             "global_solver": self.global_solver,
-            "jacobi_pcg_now": bool(self.jacobi_now[None]),
-            "factorizations": self.factorizations,
+            "jacobi_pcg_now": bool(self.matrix.jacobi_now[None]),
+            "factorizations": self.matrix.factorizations,
             "lbfgs_restarts_per_step": a["lb_restarts"] / steps,
             **self._contact_stats(a, steps),
         }
