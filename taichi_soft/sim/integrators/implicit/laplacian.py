@@ -61,8 +61,8 @@ class LaplacianMatrix:
 
     BUFFERS = {"diag": per_particle("diagonal of M + L [kg] (0 for pinned particles)")}
 
-    @classmethod
-    def buffers(cls, options, counts, real_bytes, later: FieldCounts) -> Buffers:
+    @staticmethod
+    def buffers(options, counts, real_bytes, later: FieldCounts) -> Buffers:
         """The factor (index fields, the envelope's values) when it factorises; and the host bytes
         above the fields while the envelope is sized: the downloaded spring ends (8 bytes per
         spring), their min and max (4 + 4) and per-particle starts (16 bytes), at a moment after the
@@ -115,7 +115,8 @@ class LaplacianMatrix:
             self._k_assemble()
             self.chol.factor()
             if not self.chol.ok[None]:
-                raise FloatingPointError("fast_mass_spring: the matrix M + L is not positive definite (negative stiffness?)")
+                raise FloatingPointError(
+                    "fast_mass_spring: the matrix M + L is not positive definite (negative stiffness?)")
         self._matrix_dt = float(dt)
         self.factorizations += 1
 

@@ -106,9 +106,10 @@ class Objective:
     def _gradient(self, x: ti.template(), dt):
         """grad g(x), the filtered residual ``rhs`` and its norm (``sc.res2``), from one pass over springs
         and one gather per particle. The contact active set (hold, release, multipliers) is updated
-        per particle by the terrain contact part (``contact.gradient``, contact.py). The same passes store what the solver's
-        linear operator needs (``_store_spring_hessian``, ``_store_preconditioner``): one pass
-        instead of a separate Hessian phase halves the serial kernel's compile time."""
+        per particle by the terrain contact part (``contact.gradient``, contact.py). The same passes
+        store what the solver's linear operator needs (``_store_spring_hessian``,
+        ``_store_preconditioner``): one pass instead of a separate Hessian phase halves the serial
+        kernel's compile time."""
         m = self.model
         for s in range(m.n_springs):
             g, hs = self._spring_terms(x, s, dt)
