@@ -2,8 +2,9 @@
 
 Every registered integrator on every terrain (a 5^3 cube, 2 s from the scene's own drop, landing
 included, at a step each method is stable at), the two multi-body scenes (three_cubes, pile:
-explicit and implicit body contact), and the implicit solvers' parallel driver on two terrains,
-each run through ``Simulation`` in f64 with fast math off. Prints one line per run,
+explicit and implicit body contact), the implicit solvers' parallel driver on two terrains, and
+their BDF2 scheme (``solver.scheme = bdf2``, serial and parallel, on two terrains), each run
+through ``Simulation`` in f64 with fast math off. Prints one line per run,
 ``scene integrator [parallel] dt sha256(x, v)``, then one digest of all lines.
 
     .venv/bin/python scripts/same_answers.py > before.txt    # at the old commit
@@ -11,7 +12,7 @@ each run through ``Simulation`` in f64 with fast math off. Prints one line per r
     diff before.txt after.txt                                 # no output: the same answers
 
 Compare runs made with the same TAICHI_SOFT_OPTIMIZE setting (Taichi's IR passes may reorder
-arithmetic). Takes about 4 minutes on the 2-core VM with TAICHI_SOFT_OPTIMIZE=0.
+arithmetic). Takes about 5 minutes on the 2-core VM with TAICHI_SOFT_OPTIMIZE=0.
 
 ``--stats`` adds to each line ``stats`` and a hash of the integrator's ``stats()`` after the run
 (iterations, CG iterations, refreezes, clamped and failed steps, pair counters...), for a change
@@ -70,6 +71,13 @@ def main():
             run = fingerprint(scene, name, 1 / 60, list(sets) + ["solver.mode=parallel"])
             lines.append(f"{scene} {name} parallel {1 / 60:.6g} {run}")
             print(lines[-1], flush=True)
+    # BDF2 (its flight steps; contact steps are backward Euler), both drivers.
+    for scene in ("plane", "sphere"):
+        for name in ("implicit_euler", "fast_mass_spring"):
+            for mode in ("serial", "parallel"):
+                run = fingerprint(scene, name, 1 / 60, SMALL + ["solver.scheme=bdf2", f"solver.mode={mode}"])
+                lines.append(f"{scene} {name} bdf2 {mode} {1 / 60:.6g} {run}")
+                print(lines[-1], flush=True)
     print("all", hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16])
 
 

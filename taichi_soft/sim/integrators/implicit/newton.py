@@ -9,11 +9,63 @@ term by default. Line search, contact and stopping are the shared driver's (driv
 
 import taichi as ti
 
-from ...footprint import MAT, per_particle, per_spring
+from ...allocation import allocate
+from ...footprint import MAT, FieldCounts, per_particle, per_spring
 from ...model import code_spring
 from ..base import MB, register
 from .options import NewtonConfig
 from .driver import ImplicitIntegrator
+
+
+@ti.data_oriented
+class SpringHessian:
+    """``implicit_euler``'s linear operator data: a part of it.
+
+    Input, given at construction: the ``model`` (masses, the adjacency); per call, the blocks the
+    gradient pass computes. Outputs: the Hessian's product with a vector and its block-Jacobi
+    preconditioner, both per particle, for the solver's PCG operator.
+    """
+
+    BUFFERS = {
+        "spring_hess": per_spring("h^2 (PSD spring Hessian) + h kd l l^T [kg]", MAT),
+        "precond": per_particle("inverse 3x3 diagonal blocks, the block-Jacobi preconditioner [1/kg]", MAT),
+    }
+
+    def __init__(self, model):
+        """Allocates the fields only (no write: the owner's pending SNode tree stays open)."""
+        self.model = model
+        self.n = model.n_particles
+        allocate(self, self.BUFFERS, self.n, model.n_springs)
+
+    @ti.func
+    def store_spring(self, s, hs):
+        self.spring_hess[s] = hs
+
+    @ti.func
+    def diagonal(self, i, extra):
+        """Particle i's 3x3 diagonal block [kg]: its mass, its springs' blocks and ``extra`` (friction,
+        pairs, grab)."""
+        m = self.model
+        diag = m.mass[i] * ti.Matrix.identity(float, 3) + extra
+        for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+            diag += self.spring_hess[code_spring(m.adj_spring[e])]
+        return diag
+
+    @ti.func
+    def product(self, i, src: ti.template(), extra):
+        """Row i of H src, H = M + h^2 K_psd + h D + ``extra`` (particle i's block outside the
+        springs), gathering its springs' blocks (no atomics, no assembled matrix)."""
+        m = self.model
+        q = m.mass[i] * src[i] + extra @ src[i]
+        for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
+            s = m.adj_spring[e]
+            q += self.spring_hess[code_spring(s)] @ (src[i] - src[m.adj_other[e]])
+        return q
+
+    @ti.func
+    def precondition(self, src: ti.template(), dst: ti.template()):
+        for i in range(self.n):
+            dst[i] = self.precond[i] @ src[i]
 
 
 @register
@@ -24,37 +76,27 @@ class ImplicitEuler(ImplicitIntegrator):
     name = "implicit_euler"
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
     Config = NewtonConfig
-    BUFFERS = {
-        "spring_hess": per_spring("h^2 (PSD spring Hessian) + h kd l l^T [kg]", MAT),
-        "precond": per_particle("inverse 3x3 diagonal blocks, the block-Jacobi preconditioner [1/kg]", MAT),
-    }
+    FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(SpringHessian.BUFFERS)  # and its Hessian's
     BASE_BYTES = 175 * MB  # measured (memory.py): process, runtime, compiled kernels
+
+    def __init__(self, model, terrain, options=None, contacts=None):
+        self.hessian = SpringHessian(model)  # the Newton system's blocks
+        super().__init__(model, terrain, options, contacts)
 
     @ti.func
     def _store_spring_hessian(self, s, hs):
-        self.spring_hess[s] = hs
+        self.hessian.store_spring(s, hs)
 
     @ti.func
     def _store_preconditioner(self, i):
         """Inverse of particle i's diagonal block (mass, springs, friction), filtered if held."""
-        m = self.model
-        diag = m.mass[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
-        for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
-            s = m.adj_spring[e]
-            diag += self.spring_hess[code_spring(s)]
-        self.precond[i] = self._filtered_inverse(i, diag)
+        self.hessian.precond[i] = self._filtered_inverse(i, self.hessian.diagonal(i, self.fric_hess[i]))
 
-    # PCG operator: the filtered Hessian H = M + h^2 K_psd + h D + friction, applied per particle by
-    # gathering its springs' blocks (no atomics, no assembled matrix).
+    # PCG operator: the filtered Hessian H = M + h^2 K_psd + h D + friction, applied per particle.
     @ti.func
     def apply(self, src: ti.template(), dst: ti.template()):
-        m = self.model
         for i in range(self.n):
-            q = m.mass[i] * src[i] + self.fric_hess[i] @ src[i]
-            for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
-                s = m.adj_spring[e]
-                q += self.spring_hess[code_spring(s)] @ (src[i] - src[m.adj_other[e]])
-            dst[i] = self._filter(i, q)
+            dst[i] = self._filter(i, self.hessian.product(i, src, self.fric_hess[i]))
         if ti.static(self._has_pairs()):
             self.pairs.apply(src, dst)
 
@@ -64,8 +106,7 @@ class ImplicitEuler(ImplicitIntegrator):
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):
-        for i in range(self.n):
-            dst[i] = self.precond[i] @ src[i]
+        self.hessian.precondition(src, dst)
 
     def stats(self) -> dict:
         """Averages per step since the last call (or reset): Newton and CG iterations, line-search
