@@ -12,7 +12,7 @@ local/global (``fast_mass_spring``), both minimising the step's objective (docs/
   through the body), ``scheme`` (backward Euler or BDF2 per step), ``pairs`` (contact between
   bodies: candidate pairs, penalty, friction, restitution) and ``laplacian`` (the constant matrix
   M + L and its skyline Cholesky factor);
-* ``newton``: ``implicit_euler`` (Hessian, PCG operator);
+* ``newton``: ``implicit_euler`` (its Hessian blocks as a part, the PCG operator);
 * ``local_global``: ``fast_mass_spring`` (the global step with the matrix, L-BFGS, ``lbfgs_walk``).
 """
 from .driver import ImplicitIntegrator
