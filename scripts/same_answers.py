@@ -5,7 +5,7 @@ included, at a step each method is stable at), the two multi-body scenes (three_
 explicit and implicit body contact), the implicit solvers' parallel driver on two terrains, and
 their BDF2 scheme (``solver.scheme = bdf2``, serial and parallel, on two terrains), each run
 through ``Simulation`` in f64 with fast math off. Prints one line per run,
-``scene integrator [parallel] dt sha256(x, v)``, then one digest of all lines.
+``scene integrator [bdf2] [serial|parallel] dt sha256(x, v)``, then one digest of all lines.
 
     .venv/bin/python scripts/same_answers.py > before.txt    # at the old commit
     .venv/bin/python scripts/same_answers.py > after.txt     # at the new one

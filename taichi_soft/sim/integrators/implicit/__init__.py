@@ -9,9 +9,9 @@ local/global (``fast_mass_spring``), both minimising the step's objective (docs/
 * ``objective``: inertia, springs, dampers and friction: values and gradient;
 * parts given what they read at construction: ``contact`` (the terrain's feasible start, active
   set with hysteresis, frozen friction and restitution), ``restitution`` (the bounce spread
-  through the body), ``scheme`` (backward Euler or BDF2 per step), ``pairs`` (contact between
-  bodies: candidate pairs, penalty, friction, restitution) and ``laplacian`` (the constant matrix
-  M + L and its skyline Cholesky factor);
+  through the body), ``scheme`` (backward Euler or BDF2 per step) and ``laplacian`` (the constant
+  matrix M + L and its skyline Cholesky factor); ``pairs`` (contact between bodies: candidate
+  pairs, penalty, friction, restitution) is built with its owner and reads the owner's step fields;
 * ``newton``: ``implicit_euler`` (its Hessian blocks as a part, the PCG operator);
 * ``local_global``: ``fast_mass_spring`` (the global step with the matrix, L-BFGS, ``lbfgs_walk``).
 """

@@ -198,12 +198,16 @@ class TerrainContact:
         return xi, hit
 
     @ti.func
+    def frozen(self, i):
+        """Whether particle i carries a frozen friction multiplier (held when it was frozen, hence
+        held at every trial point of the solve too)."""
+        return self.lam[i] > 0
+
+    @ti.func
     def trial_friction(self, i, disp, eps):
-        """Friction energy [kg m^2] of particle i at a trial point displaced ``disp`` from the
-        step's base: held when its multiplier was frozen, hence held at the trial too."""
-        fe = ti.cast(0.0, float)
-        if self.lam[i] > 0:
-            fe, _fg, _fh = self._friction(disp, self.trial_normal[i], self.lam[i], eps)
+        """Friction energy [kg m^2] of a ``frozen`` particle i at a trial point displaced ``disp``
+        from the step's base."""
+        fe, _fg, _fh = self._friction(disp, self.trial_normal[i], self.lam[i], eps)
         return fe
 
     @ti.func

@@ -49,11 +49,12 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
     ``options.ImplicitConfig``: its ``residual_tol`` and ``max_iterations`` stop the iterations). A
     solver whose direction has phases of its own extends ``IN_KERNEL`` and ``LAUNCHES`` with them.
 
-    Fields: a solver declares those of a fixed size in ``BUFFERS`` (the base class allocates them);
-    those whose size depends on its options (a factor, L-BFGS pairs) it allocates in ``__init__``
-    before calling this one's, and declares them in ``buffers``. (Fields allocated together, with no
-    kernel launch or field access between them, share one Taichi SNode tree; a runtime holds a
-    limited number of trees.)
+    Fields: a solver declares those of a fixed size in ``BUFFERS`` (the base class allocates them)
+    or, for a part it builds (``newton.SpringHessian``, ``laplacian.LaplacianMatrix``), adds the
+    part's table to ``FIELDS``; those whose size depends on its options (a factor, L-BFGS pairs) it
+    allocates in ``__init__`` before calling this one's, and declares them in ``buffers``. (Fields
+    allocated together, with no kernel launch or field access between them, share one Taichi SNode
+    tree; a runtime holds a limited number of trees.)
     """
 
     implicit = True
@@ -73,7 +74,8 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
     IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
 
     def __init__(self, model, terrain, options=None, contacts=None):
-        # The parts, allocated before the base class's fields (one pending SNode tree for all).
+        # The parts, allocated before the base class's fields (in the same pending SNode tree
+        # unless a subclass's own part wrote a field first: fast_mass_spring's factor does).
         # The step's scalars: f64 whatever the precision: their sums run over every particle
         # (objective, residual, energies), and in f32 a sum over 10^5-10^7 terms lost the line
         # search's decrease and the energy balance to round-off (a large body froze:

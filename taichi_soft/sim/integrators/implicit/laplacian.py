@@ -76,7 +76,7 @@ class LaplacianMatrix:
         return out + Buffers(transient=max(0, 16 * counts.springs + 16 * counts.particles - later_bytes))
 
     def __init__(self, model, global_solver: str, contact_auto: bool):
-        """Allocates the fields only (no write: the owner's pending SNode tree stays open)."""
+        """Allocates its fields (a factor's index arrays are filled at once, as before)."""
         self.model = model
         self.n = model.n_particles
         allocate(self, self.BUFFERS, self.n, 0)

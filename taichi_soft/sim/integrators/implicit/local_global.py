@@ -158,7 +158,7 @@ class FastMassSpring(ImplicitIntegrator):
     @ti.func
     def _jacobi(self):
         """1: CG is Jacobi-preconditioned now: without a factor; with one, on stiff springs
-        (by_stiffness, ``jacobi_now``) and while body pairs touch (their penalty is not in the
+        (by_stiffness, ``matrix.jacobi_now``) and while body pairs touch (their penalty is not in the
         factor: on the pile at 1/60 s the factor-preconditioned steps took 2.2x the time of Jacobi
         ones, docs/implicit.md)."""
         out = 1

@@ -189,8 +189,9 @@ class Objective:
                     self.sc.f_trial[None] += gv
                     self.sc.e_trial[None] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
-                    self.sc.f_trial[None] += self.contact.trial_friction(
-                        i, xi - self.x_prev[i] - self.scheme.u_base[i], self.fric_eps[None])
+                    if self.contact.frozen(i):
+                        self.sc.f_trial[None] += self.contact.trial_friction(
+                            i, xi - self.x_prev[i] - self.scheme.u_base[i], self.fric_eps[None])
             move = xi - x[i]
             self.sc.dec[None] += self.grad[i].dot(move)
             ti.atomic_max(self.sc.step_trial[None], move.norm())

@@ -40,7 +40,8 @@ class StepScheme:
     Inputs, given at construction: the ``model`` (gravity, pinned particles), the ``terrain`` (the
     history's contact tests), the step's scalars ``sc`` (it writes ``dt_step``; it reads
     ``n_bounce`` and ``clamped`` at the step's end) and the terrain contact part (which particles
-    the step left held); per step, the state and the objective's x_n, v_n and target buffers.
+    the step left held); per step, the state, the objective's ``x_prev``/``v_prev`` (still the last
+    step's start, x_{n-1} and v_{n-1}, when ``choose`` runs) and its target buffer.
     Outputs: ``u_base``, ``h_eff`` and ``bdf2_step`` (read by the objective, the driver and the
     step's end) and the target ``yd`` it writes into the objective's buffer.
     """
