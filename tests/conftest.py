@@ -54,6 +54,15 @@ def missing_tool(reason: str):
     pytest.fail(f"{reason}; run scripts/setup.sh, or set {ALLOW_MISSING_ENV}=1 to skip such tests", pytrace=False)
 
 
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` is running: it exists and is not a zombie waiting to be reaped."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def run_cli(*args, cwd=ROOT, timeout=600):
     """Run ``python main.py ARGS`` in a subprocess; returns the CompletedProcess (text)."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")

@@ -14,7 +14,7 @@ import uuid
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, process_alive
 
 SMALL = ["--set", "body.0.n=4", "--resolution", "96x64", "--fps", "20"]
 
@@ -36,10 +36,8 @@ def _marked(marker) -> list[int]:
             continue
         try:
             with open(f"/proc/{entry}/environ", "rb") as f:
-                if f"TAICHI_SOFT_TEST_MARK={marker}".encode() in f.read().split(b"\0"):
-                    with open(f"/proc/{entry}/stat") as s:
-                        if s.read().rsplit(")", 1)[1].split()[0] != "Z":
-                            found.append(int(entry))
+                if f"TAICHI_SOFT_TEST_MARK={marker}".encode() in f.read().split(b"\0") and process_alive(int(entry)):
+                    found.append(int(entry))
         except OSError:
             continue
     return found

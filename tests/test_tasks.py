@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import process_alive
 from taichi_soft import tasks
 from taichi_soft.tasks import LocalExecutor, Task, run_tasks
 
@@ -53,15 +54,6 @@ class _CtrlCOnceBusy(LocalExecutor):
         return LocalExecutor.wait(futures, timeout)
 
 
-def _ended(pid: int) -> bool:
-    """Whether process ``pid`` has ended: gone, or a zombie waiting to be reaped."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] == "Z"
-    except FileNotFoundError:
-        return True
-
-
 def test_ctrl_c_cancels_running_tasks_and_keeps_finished_ones(helpers_on_path, tmp_path):
     started, finished = tmp_path / "slow-started", tmp_path / "slow"
     jobs = [Task("quick", "task_helpers:square", {"x": 3}),
@@ -78,9 +70,9 @@ def test_ctrl_c_cancels_running_tasks_and_keeps_finished_ones(helpers_on_path, t
         # The slow task's process (its pid in ``started``) must end now: it would sleep 600 s.
         pid = int(started.read_text())
         hang_guard = time.monotonic() + 60  # only so that a broken cancel fails instead of hanging
-        while not _ended(pid) and time.monotonic() < hang_guard:
+        while process_alive(pid) and time.monotonic() < hang_guard:
             time.sleep(0.05)
-        killed = _ended(pid)
+        killed = not process_alive(pid)
         if not killed:
             os.kill(pid, signal.SIGKILL)  # (so that closing the executor does not wait for it)
     finally:

@@ -111,6 +111,12 @@ class Model:
             self.mass[i] = mi
             self.inv_mass[i] = 1.0 / mi if mi > 0 else 0.0
 
+    @ti.func
+    def free(self, i):
+        """Whether particle i moves under forces (inverse mass > 0); a pinned one follows its own
+        velocity."""
+        return self.inv_mass[i] > 0
+
     @ti.kernel
     def _set_groups(self, k: ti.types.ndarray(ndim=1), kd: ti.types.ndarray(ndim=1), count: ti.i32):
         for g in range(count):

@@ -78,10 +78,6 @@ class TerrainContact:
         self.lam_end.fill(0)
 
     @ti.func
-    def _free(self, i):
-        return self.model.inv_mass[i] > 0
-
-    @ti.func
     def _friction(self, disp, nrm, lam, eps):
         """Friction term of a held particle displaced ``disp`` from the step's base: (energy
         [kg m^2], gradient [kg m], Hessian [kg]).
@@ -187,7 +183,7 @@ class TerrainContact:
         held there); records the trial's hold and normal (``accept`` takes them)."""
         hit = self.active[i]
         nrm = self.normal[i]
-        if self._free(i) and moved:
+        if self.model.free(i) and moved:
             dist, nq = self.terrain.query(i, xi)
             if hit or dist < 0:
                 xi -= dist * nq
@@ -241,13 +237,13 @@ class TerrainContact:
         t = self.terrain
         delta = ti.Vector.zero(float, 3)
         skin = 0
-        if not self.active[i] and self._free(i):
+        if not self.active[i] and self.model.free(i):
             dist, nq = t.query(i, xi)
             if dist < t.epsilon[None] and -nq.dot(vi) > t.bounce_threshold[None]:
                 skin = 1
                 self.active[i] = 1
                 self.normal[i] = nq
-        if self.active[i] and self._free(i):
+        if self.active[i] and self.model.free(i):
             nrm = self.normal[i]
             vn = nrm.dot(vi)
             approach = nrm.dot(vi_prev)

@@ -96,10 +96,6 @@ class LaplacianMatrix:
         self.jacobi_now = ti.field(ti.i32, ())
         model.add_listener(self)
 
-    @ti.func
-    def _free(self, i):
-        return self.model.inv_mass[i] > 0
-
     def notify_model_changed(self, flags: int):
         """A stiffness, a damper coefficient or a mass changed: rebuild A at the next ``prepare``."""
         if flags & (CHANGED_SPRINGS | CHANGED_MASSES):
@@ -129,7 +125,7 @@ class LaplacianMatrix:
             ti.atomic_max(k_max, m.group_k[g])
         m_min = ti.cast(1e30, float)
         for i in range(self.n):
-            if self._free(i):
+            if self.model.free(i):
                 ti.atomic_min(m_min, m.mass[i])
         beta = dt * dt * k_max / m_min
         scaled = 1
@@ -144,7 +140,7 @@ class LaplacianMatrix:
             d = m.mass[i]
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 d += self.group_c[m.adj_group[e]]
-            self.diag[i] = d if self._free(i) else 0.0
+            self.diag[i] = d if self.model.free(i) else 0.0
 
     @ti.kernel
     def _k_assemble(self):
@@ -152,8 +148,8 @@ class LaplacianMatrix:
         self.chol.clear()
         for i in range(self.n):
             # Pinned rows become identity rows: their correction is zero (Dirichlet).
-            self.chol.add(i, i, self.diag[i] if self._free(i) else 1.0)
+            self.chol.add(i, i, self.diag[i] if self.model.free(i) else 1.0)
         for s in range(m.n_springs):
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
-            if self._free(a) and self._free(b):
+            if self.model.free(a) and self.model.free(b):
                 self.chol.add(ti.max(a, b), ti.min(a, b), -self.group_c[m.spring_group[s]])

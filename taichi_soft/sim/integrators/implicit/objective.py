@@ -87,7 +87,13 @@ class Objective:
     @ti.func
     def _free(self, i):
         """Pinned particles (inverse mass 0) follow their own velocity and are not solved for."""
-        return self.model.inv_mass[i] > 0
+        return self.model.free(i)
+
+    @ti.func
+    def _from_base(self, i, xi):
+        """Particle i's displacement from the step's base, xi - x_n - u_base [m] (h_e times its end
+        velocity: what the dampers and friction measure)."""
+        return xi - self.x_prev[i] - self.scheme.u_base[i]
 
     @ti.func
     def _spring_terms(self, x: ti.template(), s, dt):
@@ -135,8 +141,8 @@ class Objective:
                 if ti.static(self._has_pairs()):
                     gi += self.pairs.grad[i]
                 if ti.static(self.terrain.has_contact):
-                    gi, self.fric_hess[i] = self.contact.gradient(
-                        i, x[i] - self.x_prev[i] - self.scheme.u_base[i], gi, dt, self.fric_eps[None])
+                    gi, self.fric_hess[i] = self.contact.gradient(i, self._from_base(i, x[i]), gi, dt,
+                                                                  self.fric_eps[None])
                 if ti.static(self._has_pairs()):
                     # the pairs' diagonal blocks join the terrain friction's (just written)
                     if ti.static(self.terrain.has_contact):
@@ -190,8 +196,8 @@ class Objective:
                     self.sc.e_trial[None] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
                     if self.contact.frozen(i):
-                        self.sc.f_trial[None] += self.contact.trial_friction(
-                            i, xi - self.x_prev[i] - self.scheme.u_base[i], self.fric_eps[None])
+                        self.sc.f_trial[None] += self.contact.trial_friction(i, self._from_base(i, xi),
+                                                                             self.fric_eps[None])
             move = xi - x[i]
             self.sc.dec[None] += self.grad[i].dot(move)
             ti.atomic_max(self.sc.step_trial[None], move.norm())

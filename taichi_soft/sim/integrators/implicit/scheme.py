@@ -76,10 +76,6 @@ class StepScheme:
         self.history_ok[None] = 0
 
     @ti.func
-    def _free(self, i):
-        return self.model.inv_mass[i] > 0
-
-    @ti.func
     def choose(self, x: ti.template(), v: ti.template(), dt, x_prev: ti.template(), v_prev: ti.template(),
                yd: ti.template(), backward_euler_only: ti.template()):
         """Decide this step's scheme; write u_base, h_eff and the target ``yd``. Runs before
@@ -94,7 +90,7 @@ class StepScheme:
         if ti.static(backward_euler_only):
             self.bdf2_step[None] = 0
         for i in range(self.n):
-            if self.bdf2_step[None] and self._free(i):
+            if self.bdf2_step[None] and self.model.free(i):
                 if any(x[i] != self.x_end[i]) or any(v[i] != self.v_end[i]):
                     self.bdf2_step[None] = 0
                 if ti.static(self.terrain.has_contact):
@@ -109,11 +105,11 @@ class StepScheme:
         self.h_eff[None] = he if ok else dt
         self.sc.dt_step[None] = dt
         for i in range(self.n):
-            if ok and self._free(i):
+            if ok and self.model.free(i):
                 ub = (x[i] - x_prev[i]) / 3.0
                 self.u_base[i] = ub
                 yd[i] = ub + he * (4.0 * v[i] - v_prev[i]) / 3.0 + he * he * g
-            elif self._free(i):
+            elif self.model.free(i):
                 self.u_base[i] = ti.Vector.zero(float, 3)
                 yd[i] = dt * v[i] + dt * dt * g
             else:
@@ -130,7 +126,7 @@ class StepScheme:
             self.x_end[i] = x[i]
             self.v_end[i] = v[i]
             if ti.static(self.terrain.has_contact):
-                if self._free(i):
+                if self.model.free(i):
                     d, _n = self.terrain.query(i, x[i])
                     if self.contact.active[i] or d < self.terrain.epsilon[None]:
                         self.history_ok[None] = 0
