@@ -280,8 +280,8 @@ def test_spring_passes_count_every_evaluation_an_implicit_step_makes():
 
 
 def test_bench_contact_quick_slides_and_keeps_the_pile_apart(cli, tmp_path):
-    """``bench contact --quick``: fast_mass_spring's slide at mu = 0.3 decelerates by friction
-    (the aim is mu g; its sphere pairs measure +20-26 %, docs/implicit.md, so at most 1.5 mu g), and
+    """``bench contact --quick``: fast_mass_spring's slide at mu = 0.3 decelerates at mu g within
+    10 % (flat faces, friction the load the pairs carried: docs/implicit.md), and
     2 s of the pile with contact keeps the landed bodies apart (pairs in contact, the deepest
     overlap under a tenth of the 0.36 m finest spacing); the Markdown and the CSV agree."""
     import csv
@@ -291,7 +291,7 @@ def test_bench_contact_quick_slides_and_keeps_the_pile_apart(cli, tmp_path):
     rows = {x["study"]: x for x in csv.DictReader(open(tmp_path / "contact.csv"))}
     slide, cost = rows["slide"], rows["cost"]
     assert slide["integrator"] == "fast_mass_spring" and slide["diverged"] == "False"
-    assert 0.9 * float(slide["mu_g"]) < float(slide["deceleration"]) < 1.5 * float(slide["mu_g"])
+    assert 0.9 * float(slide["mu_g"]) < float(slide["deceleration"]) < 1.1 * float(slide["mu_g"])
     assert cost["diverged"] == "False" and float(cost["pairs_per_step"]) > 0
     assert float(cost["deepest_overlap_m"]) < 0.036
     md = (tmp_path / "CONTACT.md").read_text()

@@ -34,16 +34,25 @@ TWO_CUBES = {"body": [{"n": 10, "size": 3.0, "center": [0.0, 1.5, 0.0]},
              "terrain": {"kind": "plane", "point": [0.0, 0.0, 0.0], "normal": [0.0, 1.0, 0.0]}}
 
 
-def slide(integrator: str, mu: float, dt: float) -> dict:
+def slide(integrator: str, mu: float, dt: float, cubes: dict = TWO_CUBES, sims: dict | None = None) -> dict:
     """The slide (module doc) with ``integrator`` at step ``dt`` [s] and friction ``mu``: the
     fitted deceleration [m/s^2] against mu g (nan if the run diverged), the relative velocities
-    [m/s], and the largest particle velocity component [m/s] when the push came (settled: small)."""
+    [m/s], and the largest particle velocity component [m/s] when the push came (settled: small).
+    ``cubes``: the scene, as ``TWO_CUBES`` (the lower body first); ``sims``: simulations built by
+    earlier calls, reused from their initial state (each new one compiles its kernels again)."""
     from ..sim.integrators import names
     from ..sim.scene import scene_from_dict
     from ..sim.simulation import Simulation
 
-    scene = scene_from_dict(TWO_CUBES, "two_cubes", overrides=[f"contact.friction={mu}"], integrator_names=names())
-    sim = Simulation(scene, integrator=integrator, dt=dt)
+    key = (integrator, dt, repr(cubes))
+    sims = {} if sims is None else sims
+    if key in sims:
+        sim = sims[key]
+        sim.reset()
+    else:
+        sim = sims[key] = Simulation(scene_from_dict(cubes, "two_cubes", integrator_names=names()),
+                                     integrator=integrator, dt=dt)
+    sim.terrain.set_contact(friction=mu)
     low, high = (b.particles for b in sim.model.bodies)
     sim.advance(int(round(SETTLE / dt)))
     x, v = sim.state.numpy()
@@ -109,9 +118,9 @@ def run(quick: bool, progress=None) -> dict:
     """Every slide and cost case; ``progress(done, total, what)`` after each."""
     slides = [(name, mu, dt) for name, dt in SLIDE_RUNS for mu in MUS if not quick or (mu > 0 and name == "fast_mass_spring")]
     costs = COST_RUNS[:1] if quick else COST_RUNS
-    total, out = len(slides) + len(costs), {"slide": [], "cost": []}
+    total, out, sims = len(slides) + len(costs), {"slide": [], "cost": []}, {}
     for name, mu, dt in slides:
-        out["slide"].append(slide(name, mu, dt))
+        out["slide"].append(slide(name, mu, dt, sims=sims))
         if progress:
             progress(len(out["slide"]), total, f"slide {name} mu={mu}")
     for name, dt in costs:

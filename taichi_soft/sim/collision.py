@@ -3,7 +3,7 @@
 Only scenes with more than one body build a ``BodyContacts`` (a one-body scene compiles none of
 this code). Each particle has a contact radius of half its body's lattice spacing; a pair (i, j)
 of particles of different bodies has a contact distance R_ij = r_i + r_j (one spacing for equal
-cubes) and a unit normal n from j toward i (``BodyContacts._pair_normal``):
+cubes) and a unit normal n from j toward i (``BodyGrid._pair_normal``):
 
 * **On a face** (i or j lies on a face of its body, ``face_normals``): n is the outward normal of
   the particle's face that best faces the other particle (of an edge's two faces, a corner's
@@ -23,9 +23,8 @@ particles; a body with a much coarser lattice than its neighbour (over ~1.4x the
 the finer one's particles through its edges. Cost: on the pile (semi-implicit Euler, 1 ms,
 2026-12-04, 2-core VM, medians of 3 alternating runs) a whole step took 0.20 ms against 0.126 ms
 with spheres (1.6x); about half of the difference is the larger hash cells (SPAN), the rest the
-face normals. (The implicit solvers' contact inside the step,
-``integrators/implicit/pairs.py``, still treats every pair as spheres: docs/implicit.md, "Contact
-between bodies".)
+face normals. The implicit solvers' contact inside the step (``integrators/implicit/pairs.py``)
+uses the same geometry (``BodyGrid``), with each pair's normal and face frozen for the step.
 
 After every step (``Integrator._body_contacts``) the pass
 
@@ -87,8 +86,10 @@ def contact_radii(model) -> np.ndarray:
 @ti.data_oriented
 class BodyGrid:
     """What both body-contact solvers share (this module's, after the step; the implicit solvers'
-    pairs, in it): each particle's body and contact radius, each body's bounding box, the particles
-    near another body, and the spatial hash's cells and buckets (edge ``cell`` [m])."""
+    pairs, in it): each particle's body, contact radius, face mask and rest position, each body's
+    bounding box and best-fit rotation, the particles near another body, the spatial hash's cells
+    and buckets (edge ``cell`` [m]), and a pair's contact geometry (module doc: normal, overlap,
+    weight)."""
 
     def _init_grid(self, model):
         n = model.n_particles
@@ -107,6 +108,14 @@ class BodyGrid:
         self.body.from_numpy(body)
         radii = contact_radii(model)
         self.radius.from_numpy(radii.astype(model.real))
+        rest, faces = rest_frames(model)
+        self.rest = ti.Vector.field(3, float, n)  # rest position about the body's mean [m]
+        self.faces = ti.field(ti.i32, n)  # face mask (face_normals.AXES bits; 0: inside the body)
+        self.first = ti.field(ti.i32, self.n_bodies + 1)  # body b: particles first[b] .. first[b + 1] - 1
+        self.turn = ti.Matrix.field(3, 3, float, self.n_bodies)  # best-fit rotation of each body
+        self.rest.from_numpy(rest.astype(model.real))
+        self.faces.from_numpy(faces)
+        self.first.from_numpy(np.array([b.particles.start for b in model.bodies] + [n], np.int32))
         return radii
 
     @ti.func
@@ -137,34 +146,6 @@ class BodyGrid:
             for b in range(self.n_bodies):
                 if b != self.body[i] and all(xi >= self.lo[b] - reach) and all(xi <= self.hi[b] + reach):
                     self.near[i] = 1
-
-
-@ti.data_oriented
-class BodyContacts(BodyGrid):
-    """Particle-particle contact between different bodies of ``model``; coefficients from ``terrain``
-    (restitution, friction, bounce threshold: the scene's ``[contact]`` table)."""
-
-    def __init__(self, model, terrain):
-        self.model = model
-        self.terrain = terrain
-        radii = self._init_grid(model)
-        n = self.n
-        self.count = ti.field(ti.i32, self.table_size)
-        self.slots = ti.field(ti.i32, (self.table_size, CELL_CAPACITY))
-        self.weight = ti.field(float, n)  # sum of the weights w of the particle's pairs in contact
-        self.dx = ti.Vector.field(3, float, n)
-        self.dv = ti.Vector.field(3, float, n)
-        self.overflows = ti.field(ti.i64, ())  # particles not hashed (bucket full), summed over steps
-        self.pairs = ti.field(ti.i64, ())  # contact pairs seen, summed over steps
-        self.cell[None] = SPAN * 2.0 * float(radii.max())  # the largest contact distance
-        rest, faces = rest_frames(model)
-        self.rest = ti.Vector.field(3, float, n)  # rest position about the body's mean [m]
-        self.faces = ti.field(ti.i32, n)  # face mask (face_normals.AXES bits; 0: inside the body)
-        self.first = ti.field(ti.i32, self.n_bodies + 1)  # body b: particles first[b] .. first[b + 1] - 1
-        self.turn = ti.Matrix.field(3, 3, float, self.n_bodies)  # best-fit rotation of each body
-        self.rest.from_numpy(rest.astype(model.real))
-        self.faces.from_numpy(faces)
-        self.first.from_numpy(np.array([b.particles.start for b in model.bodies] + [n], np.int32))
 
     @ti.func
     def _turn_normals(self, x: ti.template()):
@@ -252,6 +233,26 @@ class BodyContacts(BodyGrid):
         reach = self.radius[i] + self.radius[j]
         s = 2.0 * ti.max(self.radius[i], self.radius[j])
         return ti.sqrt(reach * reach + s * s)
+
+
+@ti.data_oriented
+class BodyContacts(BodyGrid):
+    """Particle-particle contact between different bodies of ``model``; coefficients from ``terrain``
+    (restitution, friction, bounce threshold: the scene's ``[contact]`` table)."""
+
+    def __init__(self, model, terrain):
+        self.model = model
+        self.terrain = terrain
+        radii = self._init_grid(model)
+        n = self.n
+        self.count = ti.field(ti.i32, self.table_size)
+        self.slots = ti.field(ti.i32, (self.table_size, CELL_CAPACITY))
+        self.weight = ti.field(float, n)  # sum of the weights w of the particle's pairs in contact
+        self.dx = ti.Vector.field(3, float, n)
+        self.dv = ti.Vector.field(3, float, n)
+        self.overflows = ti.field(ti.i64, ())  # particles not hashed (bucket full), summed over steps
+        self.pairs = ti.field(ti.i64, ())  # contact pairs seen, summed over steps
+        self.cell[None] = SPAN * 2.0 * float(radii.max())  # the largest contact distance
 
     def stats(self) -> dict:
         """Counters for the run summary: contact pairs and hash overflows, summed over all steps."""

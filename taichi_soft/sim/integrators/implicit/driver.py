@@ -226,7 +226,7 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
                 if ti.static(self.terrain.has_contact):
                     self.contact.release(i)
         if ti.static(self._has_pairs()):
-            self.pairs.begin(self.x_prev, self.yd, self.dx, self.u)
+            self.pairs.begin(self.x_prev, self.yd, self.dx, self.u, he)
         for c in ti.static(self._counters):
             c[None] = 0
         self.sc.res_prev[None] = 1e30  # no release before a residual is known

@@ -12,14 +12,17 @@ class builds the list. The rule (docs/implicit.md, "Contact between bodies"):
   admissible t form an interval; the tube is their intersection, a convex set).
 * **Complete for the tube.** For a trial inside, x_i - x_j lies within 2 RHO of a + t b
   (a = P_i(0) - P_j(0), b = path_i - path_j), so a pair whose relative path {a + t b, t in [0, 1]}
-  stays at least R_ij + 2 RHO from the origin cannot touch there: the candidates are the other
-  pairs (``_collect``). The test is on the relative path, so bodies that move together (a falling
+  stays at least S_ij + 2 RHO from the origin cannot touch there (S_ij the farthest the pair can
+  touch: R_ij for spheres, sqrt(R_ij^2 + s^2) on a face, ``BodyGrid._span``): the candidates are
+  the other pairs (``_collect``). The test is on the relative path, so bodies that move together (a falling
   pile) or apart are not candidates however fast they move, and the list holds about the pairs
   that do come into contact.
 * **Following the solver.** The step's list is built along the start paths (``begin``). When a
   search direction would take the full step x_k + dx out of the tube (``follow``), the list is
   rebuilt along x_k + alpha dx; the old list's frozen friction multipliers carry over to the same
-  pairs (every pair holding one overlaps at x_k, so the new list has it). A trial off its tube all
+  pairs (``_stash``, ``_restore``; a pair holding one that the new list lacks, apart by more than
+  its reach all along the new path, loses it: its friction term, zero at x_n and never negative,
+  leaves the objective). The next step's list takes each pair's end-of-step load the same way. A trial off its tube all
   the same (the terrain's projection can move a particle off its segment) is rejected and counted,
   never let through. The list holds ``PAIRS_PER_PARTICLE`` per particle; more is counted
   (``body_pair_overflows``) and said by ``health``.
@@ -27,7 +30,7 @@ class builds the list. The rule (docs/implicit.md, "Contact between bodies"):
 
 import taichi as ti
 
-from ...collision import BodyGrid, table_size
+from ...collision import SPAN, BodyGrid, table_size
 
 # Capacity of the candidate list per particle (overflow is counted). The tube's list holds about the
 # pairs in contact: the pile scene needs under 1 per particle at 1/60 s and at 0.1 s
@@ -38,12 +41,14 @@ RHO = 0.25  # tube radius, in units of the largest contact distance R_max
 
 def field_bytes(n_particles: int, real_bytes: int) -> int:
     """Bytes of a ``PairContacts``'s fields (for the memory model): per candidate pair two ends (i32),
-    a multiplier, its normal and a 3x3 block (reals), and the carried-over copy of a partner (i32), a
-    multiplier and a normal (reals); per particle body, near flag, sorted index, contact count and
-    two carry-over counters (i32), radius, gradient, restitution, tube base, path and midpoint and a
-    3x3 block (reals); per hash bucket a count and a start (i32)."""
-    pairs = PAIRS_PER_PARTICLE * n_particles * (3 * 4 + 17 * real_bytes)
-    return pairs + n_particles * (6 * 4 + 25 * real_bytes) + table_size(n_particles) * 2 * 4
+    a multiplier, its normal, the contact normal and face spacing and a 3x3 block (reals), and the
+    carried-over copy of a partner (i32), a multiplier and a normal (reals); per particle body, near
+    flag, face mask, sorted index, contact count and two carry-over counters (i32), radius, rest
+    position, gradient, restitution, contact weight and depth, tube base, path and midpoint and a
+    3x3 block (reals); per hash
+    bucket a count and a start (i32)."""
+    pairs = PAIRS_PER_PARTICLE * n_particles * (3 * 4 + 21 * real_bytes)
+    return pairs + n_particles * (7 * 4 + 30 * real_bytes) + table_size(n_particles) * 2 * 4
 
 
 @ti.data_oriented
@@ -71,8 +76,11 @@ class PairList(BodyGrid):
         self.n_pairs = ti.field(ti.i32, ())
         self.pa = ti.field(ti.i32, self.capacity)  # pa < pb
         self.pb = ti.field(ti.i32, self.capacity)
-        self.lam = ti.field(float, self.capacity)  # frozen friction multiplier h^2 |F_n| [kg m]
+        # Frozen friction multiplier h^2 |F_n| [kg m]; between steps, the load of the step's end.
+        self.lam = ti.field(float, self.capacity)
         self.fnormal = vec(self.capacity)  # the normal frozen with it
+        self.pnormal = vec(self.capacity)  # contact normal of a face pair, frozen at x_n (``_geometry``)
+        self.pspace = ti.field(float, self.capacity)  # its face spacing s [m]; 0: a pair of spheres
         self.keep_pb = ti.field(ti.i32, self.capacity)  # the held pairs of the old list, by pa
         self.keep_lam = ti.field(float, self.capacity)
         self.keep_normal = vec(self.capacity)
@@ -138,6 +146,18 @@ class PairList(BodyGrid):
         """Rebuild the list along u + alpha dx (the tube around the line search), carrying the held
         pairs' frozen friction multipliers and normals over."""
         o = self.owner
+        self._stash()
+        for i in range(self.n):
+            self.base[i] = o.u[i]
+            self.path[i] = o.dx[i]
+        self._collect(o.x_prev)
+        self._restore(1.0)
+        self.acc.gathers[None] += 1.0
+
+    @ti.func
+    def _stash(self):
+        """Keep the pairs holding a friction multiplier (``lam`` > 0), with it and its normal, by
+        their first particle: the list is about to be rebuilt."""
         for i in range(self.n):
             self.keep_count[i] = 0
         for p in range(self.n_pairs[None]):
@@ -151,18 +171,18 @@ class PairList(BodyGrid):
                 self.keep_pb[k] = self.pb[p]
                 self.keep_lam[k] = self.lam[p]
                 self.keep_normal[k] = self.fnormal[p]
-        for i in range(self.n):
-            self.base[i] = o.u[i]
-            self.path[i] = o.dx[i]
-        self._collect(o.x_prev)
+
+    @ti.func
+    def _restore(self, scale):
+        """Give each pair of the rebuilt list its stashed multiplier (times ``scale``) and normal, or
+        none."""
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             self.lam[p] = 0.0
             for k in range(self.keep_start[i], self.keep_start[i + 1]):
                 if self.keep_pb[k] == j:
-                    self.lam[p] = self.keep_lam[k]
+                    self.lam[p] = scale * self.keep_lam[k]
                     self.fnormal[p] = self.keep_normal[k]
-        self.acc.gathers[None] += 1.0
 
     # -- the list -------------------------------------------------------------------------------
     @ti.func
@@ -179,9 +199,10 @@ class PairList(BodyGrid):
             for c in ti.static(range(3)):
                 ti.atomic_min(self.d_lo[None][c], d[c])
                 ti.atomic_max(self.d_hi[None][c], d[c])
-        # A candidate has |a + t b| < R_ij + 2 RHO for some t, and |b| <= 2 D (D the half-diagonal of
-        # the box of all path vectors), so |mid_i - mid_j| = |a + b / 2| < R_max + 2 RHO + D: the cell.
-        self.cell[None] = self.r_max[None] + 2.0 * rho + 0.5 * (self.d_hi[None] - self.d_lo[None]).norm()
+        # A candidate has |a + t b| < S_ij + 2 RHO for some t (S_ij = ``_span``, at most SPAN R_max),
+        # and |b| <= 2 D (D the half-diagonal of the box of all path vectors), so
+        # |mid_i - mid_j| = |a + b / 2| < SPAN R_max + 2 RHO + D: the cell.
+        self.cell[None] = SPAN * self.r_max[None] + 2.0 * rho + 0.5 * (self.d_hi[None] - self.d_lo[None]).norm()
         self._mark_near(self.mid)
         for h in range(self.table_size):
             self.bucket_count[h] = 0
@@ -200,6 +221,21 @@ class PairList(BodyGrid):
                 self._find(i, rho)
         ti.atomic_max(self.acc.most[None], ti.cast(self.n_pairs[None], ti.f64))
         self.n_pairs[None] = ti.min(self.n_pairs[None], self.capacity)
+        self._geometry(xp)
+
+    @ti.func
+    def _geometry(self, xp: ti.template()):
+        """Each candidate's contact normal and face spacing (``BodyGrid._pair_normal``) at x_n = ``xp``,
+        with the bodies' rotations there: frozen for the step, so a pair's contact term is a smooth
+        function of the positions while the solver minimises (a face's choice would jump at edges),
+        and the same for the list rebuilt from the same x_n."""
+        self._turn_normals(xp)
+        for p in range(self.n_pairs[None]):
+            i, j = self.pa[p], self.pb[p]
+            d = xp[i] - xp[j]
+            n, s = self._pair_normal(i, j, d, d.norm())
+            self.pnormal[p] = n
+            self.pspace[p] = s
 
     @ti.func
     def _closest(self, a, b):
@@ -213,7 +249,7 @@ class PairList(BodyGrid):
     @ti.func
     def _find(self, i, rho):
         """Append particle i's candidates: j > i of another body whose relative path comes within
-        R_ij + 2 rho of contact."""
+        S_ij + 2 rho (``_span``: the farthest a pair can touch, a face pair's sqrt(R_ij^2 + s^2))."""
         mi, bi = self.mid[i], self.body[i]
         ci = self._cell_of(mi)
         for o in range(27):  # the 3x3x3 cells around i's (a run-time loop: unrolled it compiles slowly)
@@ -225,7 +261,7 @@ class PairList(BodyGrid):
                 # take j only from the cell it really lies in, so each pair is seen once.
                 if j > i and self.body[j] != bi and all(self._cell_of(self.mid[j]) == c):
                     b = self.path[i] - self.path[j]
-                    if self._closest(mi - self.mid[j] - 0.5 * b, b) < self.radius[i] + self.radius[j] + 2.0 * rho:
+                    if self._closest(mi - self.mid[j] - 0.5 * b, b) < self._span(i, j) + 2.0 * rho:
                         p = ti.atomic_add(self.n_pairs[None], 1)
                         if p < self.capacity:
                             self.pa[p] = i

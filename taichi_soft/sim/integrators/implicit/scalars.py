@@ -91,14 +91,15 @@ STEP_ACCOUNTS = {
 # name: meaning. f64 sums over steps of the body-body pair terms (pairs.py, pair_list.py).
 PAIR_ACCOUNTS = {
     "contact": "pairs in contact at a step's end",
-    "removed": "overlap the predictor would have made, less what is left at the end [m]",
-    "deepest": "deepest overlap at the end of any step (a maximum) [m]",
+    "removed": "overlap (w o) the predictor would have made, less what is left at the end [m]",
+    "deepest": "deepest particle in another body at the end of any step (a maximum; pairs.py) [m]",
     "overflow": "candidate pairs a full list could not keep",
     "trust": "trials outside the tube",
     "pairs": "candidate pairs",
     "bounces": "restitution bounces",
     "gathers": "pair lists rebuilt for a search direction",
     "most": "the most candidate pairs in one list (a maximum)",
+    "refrozen": "penalty energy at a step's start with its geometry, less the last step's end [J]",
 }
 
 START_HALVINGS = 3  # most halvings of the feasible start fraction before starting at x_n
