@@ -24,9 +24,7 @@ the finer one's particles through its edges. Cost: on the pile (semi-implicit Eu
 2026-12-04, 2-core VM, medians of 3 alternating runs) a whole step took 0.20 ms against 0.126 ms
 with spheres (1.6x); about half of the difference is the larger hash cells (SPAN), the rest the
 face normals. The implicit solvers' contact inside the step (``integrators/implicit/pairs.py``)
-uses the same faces (``BodyGrid``), with each pair's normal and face frozen for the step and chosen
-as the face normal along which the pair overlaps least (``_least_overlap_normal``: continuous in the
-positions, so refreezing it at the next step changes a pair's energy only by its bodies' turn).
+uses the same geometry (``BodyGrid``), with each pair's normal and face frozen for the step.
 
 After every step (``Integrator._body_contacts``) the pass
 
@@ -213,41 +211,6 @@ class BodyGrid:
         elif dist > 0:
             n = d / dist
         return n, s
-
-    @ti.func
-    def _least_overlap_normal(self, i, j, d, dist):
-        """Contact normal (unit, from j toward i) and face spacing [m] of the pair (i, j) at
-        d = x_i - x_j, dist = |d|, for the implicit solvers (``integrators/implicit/pair_list.py``):
-        of the candidate axes -- the outward normals of i's faces, reversed, and of j's faces (turned)
-        -- the one along which the pair overlaps least, o = R_ij - max_n n . d, with the face spacing
-        s = 2 max(r_i, r_j); spheres where neither particle is on a face. The overlap and the weight
-        are then continuous in d wherever a particle has a face, so a normal refrozen at a new x_n
-        changes a pair's penalty energy only as much as its bodies turned -- ``_pair_normal``'s rule
-        jumps where an edge particle's choice of face flips, or where two chosen faces turn to face
-        the same way (measured on the pile: single steps of 500-2800 J, docs/benchmarks/ENERGY.md)."""
-        best = ti.Vector([0.0, 1.0, 0.0], dt=float)
-        score = ti.cast(-1e30, float)  # below any n . d: no candidate yet
-        for k in ti.static(range(2)):
-            p = i
-            if ti.static(k == 1):
-                p = j
-            sign = ti.static(-1.0 if k == 0 else 1.0)
-            mask = self.faces[p]
-            turn = self.turn[self.body[p]]
-            for a in ti.static(range(6)):
-                if mask & (1 << a):
-                    n = ti.static(sign * (1.0 - 2.0 * (a // 3))) * ti.Vector(
-                        [turn[0, a % 3], turn[1, a % 3], turn[2, a % 3]])
-                    c = n.dot(d)
-                    if c > score:
-                        score = c
-                        best = n
-        s = ti.cast(0.0, float)
-        if score > -1e29:
-            s = 2.0 * ti.max(self.radius[i], self.radius[j])
-        elif dist > 0:
-            best = d / dist
-        return best, s
 
     @ti.func
     def _pair_gap(self, i, j, d, dist, n, s):

@@ -225,7 +225,7 @@ class PairList(BodyGrid):
 
     @ti.func
     def _geometry(self, xp: ti.template()):
-        """Each candidate's contact normal and face spacing (``BodyGrid._least_overlap_normal``) at x_n = ``xp``,
+        """Each candidate's contact normal and face spacing (``BodyGrid._pair_normal``) at x_n = ``xp``,
         with the bodies' rotations there: frozen for the step, so a pair's contact term is a smooth
         function of the positions while the solver minimises (a face's choice would jump at edges),
         and the same for the list rebuilt from the same x_n."""
@@ -233,7 +233,7 @@ class PairList(BodyGrid):
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             d = xp[i] - xp[j]
-            n, s = self._least_overlap_normal(i, j, d, d.norm())
+            n, s = self._pair_normal(i, j, d, d.norm())
             self.pnormal[p] = n
             self.pspace[p] = s
 

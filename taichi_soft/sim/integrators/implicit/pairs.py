@@ -2,9 +2,8 @@
 
 Only an implicit integrator of a scene with several bodies builds a ``PairContacts`` (a one-body
 scene compiles none of this). A pair (i, j) of particles of different bodies has the explicit
-methods' flat faces (``collision``): on a face, a normal n, the face normal (of either particle's
-faces) along which the pair overlaps least (``BodyGrid._least_overlap_normal``), and the overlap
-o = R_ij - n . (x_i - x_j) along it, weighted by w = (1 - |t|^2 / s^2)^2 of the tangential
+methods' geometry (``collision``): on a face, a normal n from the bodies' face normals and the
+overlap o = R_ij - n . (x_i - x_j) along it, weighted by w = (1 - |t|^2 / s^2)^2 of the tangential
 offset t within the face spacing s, so that faces are flat; otherwise spheres, o = R_ij - |x_i - x_j|,
 w = 1. In contact when o > 0 and w > 0. Per step (docs/implicit.md, "Contact between bodies"):
 
@@ -37,8 +36,7 @@ w = 1. In contact when o > 0 and w > 0. Per step (docs/implicit.md, "Contact bet
 * **Energy account**: freezing a pair's geometry at x_n changes its penalty energy between one
   step's end and the next step's start; ``begin`` counts that change (``body_pair_energy_refrozen_J``)
   and ``energy_terms`` gives both, so an energy balance (bench energy, the tests) can add the
-  penalty and take off what the refreezing changed. The least-overlap normal is continuous in the
-  positions, so the change is the bodies' turn over a step, second order in it.
+  penalty and take off what the refreezing changed.
 """
 
 import taichi as ti
@@ -175,7 +173,7 @@ class PairContacts(PairList):
     @ti.func
     def _gap(self, p, d):
         """(overlap o [m], weight w, unit normal n from j toward i) of pair p at d = x_i - x_j: the
-        explicit methods' overlap and weight (``collision.BodyGrid._pair_gap``) with the normal and face frozen
+        explicit methods' geometry (``collision.BodyGrid._pair_gap``) with the normal and face frozen
         at x_n (``_geometry``); a pair of spheres' normal follows d (the frozen friction normal if
         d = 0). In contact when o > 0 and w > 0; w = 0 beyond the pair's span, as there."""
         i, j = self.pa[p], self.pb[p]
