@@ -12,7 +12,7 @@ import taichi as ti
 @ti.kernel
 def _displace(integ: ti.template(), x: ti.template()):
     for i in range(integ.n):
-        integ.u[i] = x[i] - integ.x_prev[i]
+        integ.objective.u[i] = x[i] - integ.objective.x_prev[i]
 
 
 @ti.kernel
@@ -24,9 +24,9 @@ def _no_contacts(integ: ti.template()):
 @ti.kernel
 def _trial_at(integ: ti.template(), x: ti.template(), dt: float, alpha: float):
     for i in range(integ.n):
-        integ.dx[i] = ti.Vector.zero(float, 3)
+        integ.objective.dx[i] = ti.Vector.zero(float, 3)
     integ.sc.alpha[None] = alpha
-    integ._trial(x, dt)
+    integ.objective.trial(x, dt)
 
 
 @ti.kernel
@@ -52,7 +52,7 @@ def gradient(integ, state, dt: float) -> np.ndarray:
     """grad g(state.x) [kg m], an [n, 3] array."""
     _displace(integ, state.x)
     integ.launches.gradient(state.x, dt)
-    return integ.grad.to_numpy()
+    return integ.objective.grad.to_numpy()
 
 
 def hessian_product(integ, state, dt: float, w: np.ndarray) -> np.ndarray:

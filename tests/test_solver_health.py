@@ -41,7 +41,7 @@ class _Uphill(ImplicitEuler):
     @ti.func
     def _ascent(self):
         for i in range(self.n):
-            self.dx[i] = -self.rhs[i] * self.model.inv_mass[i]
+            self.objective.dx[i] = -self.objective.rhs[i] * self.model.inv_mass[i]
 
 
 def test_failed_line_searches_are_said_and_the_run_exits_non_zero(monkeypatch, capsys, tmp_path):

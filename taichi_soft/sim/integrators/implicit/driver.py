@@ -16,31 +16,33 @@ A step (docs/implicit.md):
 Every decision (convergence tests, Armijo, the forcing term, recording) is a ti.func writing
 the step's scalars (``sc``: scalars.py). The sequence of phases is written once (walk.py): the
 serial driver runs it inside the one-launch kernel of many steps, the parallel driver from Python
-scope, one launch per phase.
-Phase 4 is ``step_end.py``; the step's counters ``accounts.py``.
+scope, one launch per phase. The parts it composes, each given what it reads at construction: the
+objective g (objective.py), the terrain contact (contact.py), the body-body pairs (pairs.py), the
+scheme (scheme.py), the restitution spread (restitution.py), the PCG (linalg.py), the step's end
+(step_end.py, phase 4) and the step's counters (accounts.py).
 """
 
 import numpy as np
 import taichi as ti
 
-from ...footprint import ADJACENCY, VEC, FieldCounts, per_particle
+from ...footprint import ADJACENCY, FieldCounts
 from ...linalg import PCG
 from ...model import CHANGED_MASSES
 from ..base import Integrator
-from .accounts import StepAccounts
+from .accounts import StepAccounts, spring_passes_per_step
 from .contact import TerrainContact
 from .objective import Objective
 from .options import ImplicitConfig
 from .pairs import PairContacts
 from .restitution import BOUNCE_CG_TOL, BounceSpread
-from .scalars import RES_HISTORY, START_HALVINGS, STEP_ACCOUNTS, accounts, counters, step_scalars
+from .scalars import START_HALVINGS, counters, step_scalars
 from .scheme import StepScheme
 from .step_end import StepEnd
 from .walk import CG_DIRECTION, STEP, InKernel, Launches
 
 
 @ti.data_oriented
-class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
+class ImplicitIntegrator(Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
     Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
@@ -60,16 +62,11 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
     implicit = True
     order = 1
     force_evals = 0
-    # No force-pass buffers. Its mixin's table (Objective) and this one; besides them the model's
-    # adjacency and its parts' tables: the PCG's (linalg.PCG), the terrain contact's (contact.py),
-    # the restitution spread's (restitution.py) and the scheme's (scheme.py).
-    BUFFERS = {
-        "v_new": per_particle("velocity from the solve [m/s]", VEC),
-        "dv": per_particle("restitution's velocity change [m/s]", VEC),
-    }
-    FIELDS = ADJACENCY + FieldCounts.of(PCG.BUFFERS) + FieldCounts.of(TerrainContact.BUFFERS) \
-        + FieldCounts.of(BounceSpread.BUFFERS) + FieldCounts.of(StepScheme.BUFFERS)
+    # No force-pass buffers and no table of its own: the model's adjacency and its parts' tables.
+    FIELDS = ADJACENCY + FieldCounts.of(*(part.BUFFERS for part in (
+        Objective, PCG, TerrainContact, BounceSpread, StepScheme, StepEnd)))
     Config = ImplicitConfig  # each solver's own extends it (options.py)
+    spring_passes_per_step = staticmethod(spring_passes_per_step)  # (accounts.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
     IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
 
@@ -85,13 +82,14 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
         self.contact = TerrainContact(model, terrain, self.sc)  # held particles, friction, bounce
         self.spread = BounceSpread(model.n_particles, self.contact, self.sc)  # restitution through the body
         self.scheme = StepScheme(model, terrain, self.sc, self.contact)  # backward Euler or BDF2, per step
+        # g(x), its gradient and values; this solver's linear operator takes the gradient pass's blocks
+        self.objective = Objective(model, terrain, self.sc, self.scheme, self.contact, operator=self)
+        self.accounts = StepAccounts(self.sc, self.scheme)  # what the steps did, for stats()
+        self.end = StepEnd(model, terrain, self.sc, self.objective, self.contact, self.spread, self.scheme,
+                           self.accounts, owner=self)  # phase 4
         super().__init__(model, terrain, options, contacts)
-        self._init_objective(model)
         o = self.options
         self._counters = counters(self.sc)
-        self.acc = accounts(STEP_ACCOUNTS)
-        self.res_history = ti.field(float, RES_HISTORY)  # residual [m/s^2] per gradient of the last step
-        self.n_history = ti.field(ti.i32, ())
         # Limits read by kernels (fields, so changing an option's value needs no recompile).
         self.max_iters = ti.field(ti.i32, ())
         self.ls_iters = ti.field(ti.i32, ())
@@ -100,18 +98,17 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
         self.cg_tol = ti.field(float, ())
         self.ew_forcing = ti.field(ti.i32, ())  # 1: Eisenstat-Walker forcing term
         self.velocity_tol = ti.field(float, ())  # [m/s]
-        self.clamp_on = ti.field(ti.i32, ())
         self.tol2 = ti.field(float, ())  # tolerance on sc.res2 for this step's h_eff (see _begin_step)
         self.tol_acc = ti.field(float, ())  # the solver's residual tolerance [m/s^2]
         self.roundoff = ti.field(float, ())  # relative objective noise the line search ignores
-        self.energy_tol = ti.field(float, ())  # relative energy growth counted as round-off
         # Values only after every field is allocated: the first write closes the pending SNode
         # tree, and the next field would open another (the runtime holds 512: allocation.MAX_TREES).
         self.scheme.use_bdf2(o.scheme == "bdf2")
         self.tol_acc[None] = o.residual_tol
         self.roundoff[None] = 16 * np.finfo(model.real).eps
-        self.energy_tol[None] = 1e3 * np.finfo(model.real).eps
-        self.friction_velocity[None] = o.friction_velocity
+        self.end.energy_tol[None] = 1e3 * np.finfo(model.real).eps
+        self.objective.friction_velocity[None] = o.friction_velocity
+        self.objective.translation_free[None] = int(not terrain.has_contact and not (model.mass_np <= 0).any())
         self.max_iters[None] = o.max_iterations
         self.ls_iters[None] = o.line_search_iters
         self.max_updates[None] = o.friction_updates
@@ -120,7 +117,7 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
         self.ew_forcing[None] = int(o.eisenstat_walker)
         self.velocity_tol[None] = o.velocity_tol
         # The energy account assumes no pinned particle does work on the body.
-        self.clamp_on[None] = int(o.energy_clamp and not np.any(model.mass_np <= 0))
+        self.end.clamp_on[None] = int(o.energy_clamp and not np.any(model.mass_np <= 0))
         self.contact.release_tol[None] = max(o.residual_tol, 0.1)
         self._masses_changed = True  # (notify_model_changed) total mass and translation test to refresh
         self.in_kernel = self.IN_KERNEL(self)  # the serial driver's phases
@@ -140,9 +137,16 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
         self.pairs = None
         if value is not None and self.options.body_contact:
             self.pairs = PairContacts(self, self.options.contact_stiffness)
+        self.objective.pairs = self.end.pairs = self.pairs
 
     def _has_pairs(self) -> bool:
         return self.pairs is not None
+
+    @ti.func
+    def _grab_factored(self, i):
+        """Whether the solver's matrix already carries the grab on particle i (fast_mass_spring's
+        factor does, local_global.py); otherwise a grabbed particle counts as held (objective.py)."""
+        return False
 
     @ti.func
     def _body_contacts(self, x: ti.template(), v: ti.template(), dt):
@@ -151,48 +155,19 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
     def _prepare(self, dt: float):
         """Hook run before each ``advance`` with its dt [s] (fast mass-spring refactorises here)."""
 
-    @ti.func
-    def _filter(self, i, q):
-        """q with what particle i cannot move removed: all of it if pinned, the normal component
-        if held on the terrain (Baraff & Witkin 1998, Sec. 5.3)."""
-        out = q
-        if not self._free(i):
-            out = ti.Vector.zero(float, 3)
-        elif ti.static(self.terrain.has_contact):
-            out = self.contact.filter(i, q)
-        return out
-
-    @ti.func
-    def _filtered_inverse(self, i, block):
-        """Inverse of particle i's diagonal 3x3 ``block`` as a block-Jacobi preconditioner uses it:
-        0 if pinned; if held on the terrain, S (S B S + N N^T)^-1 S (S = I - N N^T: the constrained
-        block, kept invertible; its inverse maps the tangent plane to itself, so PCG stays there)."""
-        pinv = ti.Matrix.zero(float, 3, 3)
-        if self._free(i):
-            held = 0
-            if ti.static(self.terrain.has_contact):
-                held = self.contact.active[i]
-            if held:
-                nrm = self.contact.normal[i]
-                sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
-                pinv = sp @ (sp @ block @ sp + nrm.outer_product(nrm)).inverse() @ sp
-            else:
-                pinv = block.inverse()
-        return pinv
-
     # -- phase 1: begin ---------------------------------------------------------------------------
     @ti.func
     def _begin_step(self, x: ti.template(), v: ti.template(), dt):
         """Start a step of h = dt: the scheme (scheme.py) sets yd, u_base and h_eff, the step every
         term of the objective uses (h, or 2 h / 3 for BDF2)."""
         m = self.model
-        self.scheme.choose(x, v, dt, self.x_prev, self.v_prev, self.yd,
+        self.scheme.choose(x, v, dt, self.objective.x_prev, self.objective.v_prev, self.objective.yd,
                            ti.static(self._has_pairs() or self.model.has_grab()))
         he = self.scheme.h_eff[None]
-        self.sc.h2_prev[None] = self.h2[None]  # the multipliers kept in lam are for this h^2
-        self.h2[None] = he * he
-        self.tol2[None] = (self.tol_acc[None] * he * he) ** 2 * self.total_mass[None]
-        self.fric_eps[None] = self.friction_velocity[None] * he
+        self.sc.h2_prev[None] = self.objective.h2[None]  # the multipliers kept in lam are for this h^2
+        self.objective.h2[None] = he * he
+        self.tol2[None] = (self.tol_acc[None] * he * he) ** 2 * self.objective.total_mass[None]
+        self.objective.fric_eps[None] = self.objective.friction_velocity[None] * he
         for s in range(m.n_springs):
             # The damper direction, frozen over the step: at x_n for backward Euler (a first-order
             # lag, like the method); at the predictor y = x_{n+1} + O(h^2) for BDF2, or the lag
@@ -200,38 +175,38 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             d = x[a] - x[b]
             if self.scheme.bdf2_step[None]:
-                d += self.yd[a] - self.yd[b]
+                d += self.objective.yd[a] - self.objective.yd[b]
             length = d.norm()
-            self.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
+            self.objective.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
         self.sc.t_max[None] = 1.0
         self.sc.k_start[None] = 0.0
         for i in range(self.n):
             xi = x[i]
-            self.x_prev[i] = xi
-            self.v_prev[i] = v[i]
-            self.u[i] = ti.Vector.zero(float, 3)
-            self.grad[i] = ti.Vector.zero(float, 3)
-            self.fric_hess[i] = ti.Matrix.zero(float, 3, 3)
-            d = self.yd[i]
-            if self._free(i):
+            self.objective.x_prev[i] = xi
+            self.objective.v_prev[i] = v[i]
+            self.objective.u[i] = ti.Vector.zero(float, 3)
+            self.objective.grad[i] = ti.Vector.zero(float, 3)
+            self.objective.fric_hess[i] = ti.Matrix.zero(float, 3, 3)
+            d = self.objective.yd[i]
+            if self.model.free(i):
                 mi = m.mass[i]
                 self.sc.k_start[None] += 0.5 * mi * v[i].dot(v[i])
                 if ti.static(self.terrain.has_contact):
                     d = self.contact.start(i, xi, d, he)
-                self.dx[i] = d
+                self.objective.dx[i] = d
             else:
-                self.u[i] = d
+                self.objective.u[i] = d
                 x[i] = xi + d  # pinned: moves with its own velocity, never solved for
-                self.dx[i] = ti.Vector.zero(float, 3)
+                self.objective.dx[i] = ti.Vector.zero(float, 3)
                 if ti.static(self.terrain.has_contact):
                     self.contact.release(i)
         if ti.static(self._has_pairs()):
-            self.pairs.begin(self.x_prev, self.yd, self.dx, self.u, he)
+            self.pairs.begin(self.objective.x_prev, self.objective.yd, self.objective.dx, self.objective.u, he)
         for c in ti.static(self._counters):
             c[None] = 0
         self.sc.res_prev[None] = 1e30  # no release before a residual is known
         self.sc.step[None] = 1e30
-        self.n_history[None] = 0
+        self.accounts.n_history[None] = 0
         # Phase 0 evaluates the reference g(x_n) and E(x_n): one trial at alpha = 0.
         self._line_search_begin(0.0, 0)
 
@@ -270,8 +245,8 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
         ok = self.sc.accepted[None]
         for i in range(self.n):
             if ok:
-                x[i] = self.x_trial[i]
-                self.u[i] = self.u_trial[i]
+                x[i] = self.objective.x_trial[i]
+                self.objective.u[i] = self.objective.u_trial[i]
                 if ti.static(self.terrain.has_contact):
                     self.contact.accept(i)
         phase = self.sc.phase[None]
@@ -296,10 +271,8 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
         """Record the residual; decide: done, refreeze friction (re-evaluate), or iterate on (and set
         the CG forcing term)."""
         k = self.sc.evals[None]
-        res = self._residual()
-        if k < RES_HISTORY:
-            self.res_history[k] = res
-        self.n_history[None] = ti.min(k + 1, RES_HISTORY)
+        res = self.objective.residual()
+        self.accounts.residual_at(k, res)
         self.sc.evals[None] = k + 1
         if k == 0:
             self.sc.res2_0[None] = self.sc.res2[None]
@@ -376,23 +349,22 @@ class ImplicitIntegrator(Objective, StepEnd, StepAccounts, Integrator):
         ``set_masses``: pinning one ends the step's translation invariance)."""
         if self._masses_changed:
             mass = self.model.mass_np
-            self.total_mass[None] = float(np.sum(mass[mass > 0])) or 1.0
-            self.translation_free[None] = int(not self.terrain.has_contact and not (mass <= 0).any())
+            self.objective.total_mass[None] = float(np.sum(mass[mass > 0])) or 1.0
+            self.objective.translation_free[None] = int(not self.terrain.has_contact and not (mass <= 0).any())
             self._masses_changed = False
 
     def reset(self):
         super().reset()
-        self.acc.fill(0)
+        self.accounts.reset()
         self.contact.reset()  # no warm start from before the reset
         if self.pairs is not None:
             self.pairs.reset()
-        self.n_history[None] = 0
         self.scheme.reset()  # BDF2 starts its history again
 
     def residual(self) -> float:
         """Residual [m/s^2] of the last gradient evaluation (see ``_residual``)."""
-        return float(np.sqrt(max(float(self.sc.res2[None]), 0.0) / float(self.total_mass[None]))) / float(self.h2[None])
+        return float(np.sqrt(max(float(self.sc.res2[None]), 0.0) / float(self.objective.total_mass[None]))) / float(self.objective.h2[None])
 
     def residual_history(self) -> list[float]:
         """Residual [m/s^2] at each gradient evaluation of the last step (the first at the start)."""
-        return self.res_history.to_numpy()[: int(self.n_history[None])].tolist()
+        return self.accounts.history()

@@ -13,17 +13,17 @@ def _global_step(integ, ph, x):
     """dx from rhs by the global step alone (the plain local/global iteration's direction)."""
     if ti.static(integ.factorised):
         if integ.matrix.jacobi_now[None]:
-            ph.cg(integ.rhs, integ.dx)  # stiff springs (by_stiffness): Jacobi PCG, as pcg
+            ph.cg(integ.objective.rhs, integ.objective.dx)  # stiff springs (by_stiffness): Jacobi PCG, as pcg
         elif integ.sc.n_active[None] == 0:
-            ph.factor_solve(integ.rhs, integ.dx)  # nothing held: the factorisation is exact
+            ph.factor_solve(integ.objective.rhs, integ.objective.dx)  # nothing held: the factorisation is exact
         elif ti.static(integ.scaled_contact) and integ.sc.n_pairs[None] == 0 and integ.matrix.scaled_now[None]:
             # (pairs in contact: PCG, below; the scaled step's one smoothing sweep cannot carry the
             # stiff pair penalty, and local/global then stalled at the velocity test)
             ph.scaled_direction()
         else:
-            ph.cg(integ.rhs, integ.dx)
+            ph.cg(integ.objective.rhs, integ.objective.dx)
     else:
-        ph.cg(integ.rhs, integ.dx)
+        ph.cg(integ.objective.rhs, integ.objective.dx)
 
 
 GLOBAL_STEP = Walk(_global_step)

@@ -18,6 +18,7 @@ import taichi as ti
 
 from ...footprint import MAT, Buffers, FieldCounts, per_particle
 from ..base import MB, model_counts, register, running_target
+from .accounts import contact_stats
 from .driver import ImplicitIntegrator
 from .laplacian import LaplacianMatrix
 from .lbfgs_walk import LBFGS_DIRECTION, LocalGlobalInKernel, LocalGlobalLaunches
@@ -93,7 +94,7 @@ class FastMassSpring(ImplicitIntegrator):
             z[j] = ti.Vector.zero(float, 3)
         ok = 0
         if i >= 0:
-            if self._free(i):
+            if self.model.free(i):
                 ok = 1
         if ok:
             z[i] = ti.Vector([1.0, 1.0, 1.0])
@@ -123,7 +124,7 @@ class FastMassSpring(ImplicitIntegrator):
             i = self.grab_w_for[None]
             if i >= 0:
                 if i == self.model.grab.index[None]:
-                    h2 = self.h2[None]
+                    h2 = self.objective.h2[None]
                     c = h2 * self.model.grab.k[None] + ti.sqrt(h2) * self.model.grab.c[None]
                     coef = c / (1.0 + c * self.grab_w[i]) * x[i]
                     for j in range(self.n):
@@ -148,10 +149,10 @@ class FastMassSpring(ImplicitIntegrator):
         m = self.model
         mat = self.matrix
         for i in range(self.n):
-            q = mat.diag[i] * src[i] + self.fric_hess[i] @ src[i]  # friction: not in the factorisation
+            q = mat.diag[i] * src[i] + self.objective.fric_hess[i] @ src[i]  # friction: not in the factorisation
             for e in range(m.adj_offset[i], m.adj_offset[i + 1]):
                 q -= mat.group_c[m.adj_group[e]] * src[m.adj_other[e]]
-            dst[i] = self._filter(i, q)
+            dst[i] = self.objective.filter(i, q)
         if ti.static(self._has_pairs()):
             self.pairs.apply(src, dst)
 
@@ -172,7 +173,7 @@ class FastMassSpring(ImplicitIntegrator):
     @ti.func
     def _jacobi_block(self, i):
         """Particle i's 3x3 diagonal block of A + F [kg]: A's diagonal with its friction and pair blocks."""
-        return self.matrix.diag[i] * ti.Matrix.identity(float, 3) + self.fric_hess[i]
+        return self.matrix.diag[i] * ti.Matrix.identity(float, 3) + self.objective.fric_hess[i]
 
     @ti.func
     def prepare_preconditioner(self):
@@ -183,7 +184,7 @@ class FastMassSpring(ImplicitIntegrator):
         for i in range(self.n):  # a loop under a run-time branch would run serially
             if jacobi:
                 blk = self._jacobi_block(i)
-                self.jacobi_inv[i] = self._filtered_inverse(i, blk)
+                self.jacobi_inv[i] = self.objective.filtered_inverse(i, blk)
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):
@@ -195,7 +196,7 @@ class FastMassSpring(ImplicitIntegrator):
             if jacobi:
                 dst[i] = self.jacobi_inv[i] @ src[i]  # (prepare_preconditioner)
             else:
-                dst[i] = self._filter(i, dst[i])
+                dst[i] = self.objective.filter(i, dst[i])
 
     @ti.func
     def _scaled_direction(self):
@@ -215,15 +216,15 @@ class FastMassSpring(ImplicitIntegrator):
         iterations as solving the filtered system to cg_tol by PCG, at a third of the factor
         solves (1.8-2.9x faster), but the landing steps that reach the iteration cap end at larger
         residuals."""
-        z, q, d = ti.static(self.pcg.z, self.pcg.q, self.dx)
-        self.precondition(self.rhs, z)  # the factor's solve: the walk takes this step only while not Jacobi
+        z, q, d = ti.static(self.pcg.z, self.pcg.q, self.objective.dx)
+        self.precondition(self.objective.rhs, z)  # the factor's solve: the walk takes this step only while not Jacobi
         self.apply(z, q)
         for i in range(self.n):
             blk = self._jacobi_block(i)
-            d[i] = z[i] + self._filter(i, blk.inverse() @ (self.rhs[i] - q[i]))
+            d[i] = z[i] + self.objective.filter(i, blk.inverse() @ (self.objective.rhs[i] - q[i]))
         self.pcg.rz[None] = 0.0
         for i in range(self.n):
-            self.pcg.rz[None] += self.rhs[i].dot(d[i])
+            self.pcg.rz[None] += self.objective.rhs[i].dot(d[i])
         if self.pcg.rz[None] <= 0:  # not a descent direction: the factor solve alone is
             for i in range(self.n):
                 d[i] = z[i]
@@ -231,7 +232,7 @@ class FastMassSpring(ImplicitIntegrator):
         self.pcg.rz[None] = 0.0
         self.pcg.pq[None] = 0.0
         for i in range(self.n):
-            self.pcg.rz[None] += self.rhs[i].dot(d[i])
+            self.pcg.rz[None] += self.objective.rhs[i].dot(d[i])
             self.pcg.pq[None] += d[i].dot(q[i])
         alpha = ti.cast(0.0, float)
         if self.pcg.pq[None] > 0:
@@ -264,14 +265,14 @@ class FastMassSpring(ImplicitIntegrator):
         self.lb_dot[None] = 0.0
         for i in range(self.n):
             if keep:
-                s = self.u[i] - self.lb_x[i]
-                y = self.lb_r[i] - self.rhs[i]
+                s = self.objective.u[i] - self.lb_x[i]
+                y = self.lb_r[i] - self.objective.rhs[i]
                 self.lb_s[i, head] = s
                 self.lb_y[i, head] = y
                 self.lb_dot[None] += s.dot(y)
             if not held:
-                self.lb_x[i] = self.u[i]
-                self.lb_r[i] = self.rhs[i]
+                self.lb_x[i] = self.objective.u[i]
+                self.lb_r[i] = self.objective.rhs[i]
         if not keep:
             c.lb_count[None] = 0
         elif self.lb_dot[None] > 0:
@@ -291,11 +292,11 @@ class FastMassSpring(ImplicitIntegrator):
         slot = (self.sc.lb_head[None] - 1 - j + mh) % mh
         self.lb_dot[None] = 0.0
         for i in range(self.n):
-            self.lb_dot[None] += self.lb_s[i, slot].dot(self.rhs[i])
+            self.lb_dot[None] += self.lb_s[i, slot].dot(self.objective.rhs[i])
         a = self.lb_rho[slot] * self.lb_dot[None]
         self.lb_alpha[slot] = a
         for i in range(self.n):
-            self.rhs[i] -= a * self.lb_y[i, slot]
+            self.objective.rhs[i] -= a * self.lb_y[i, slot]
 
     @ti.func
     def _lbfgs_second(self, j):
@@ -304,10 +305,10 @@ class FastMassSpring(ImplicitIntegrator):
         slot = (self.sc.lb_head[None] - self.sc.lb_count[None] + j + mh) % mh
         self.lb_dot[None] = 0.0
         for i in range(self.n):
-            self.lb_dot[None] += self.lb_y[i, slot].dot(self.dx[i])
+            self.lb_dot[None] += self.lb_y[i, slot].dot(self.objective.dx[i])
         b = self.lb_alpha[slot] - self.lb_rho[slot] * self.lb_dot[None]
         for i in range(self.n):
-            self.dx[i] += b * self.lb_s[i, slot]
+            self.objective.dx[i] += b * self.lb_s[i, slot]
 
     @ti.func
     def _lbfgs_finish(self):
@@ -316,9 +317,9 @@ class FastMassSpring(ImplicitIntegrator):
         c = ti.static(self.sc)
         self.lb_dot[None] = 0.0
         for i in range(self.n):
-            self.rhs[i] = self.lb_r[i]
-            self.dx[i] = self._filter(i, self.dx[i])
-            self.lb_dot[None] += self.rhs[i].dot(self.dx[i])
+            self.objective.rhs[i] = self.lb_r[i]
+            self.objective.dx[i] = self.objective.filter(i, self.objective.dx[i])
+            self.lb_dot[None] += self.objective.rhs[i].dot(self.objective.dx[i])
         if self.lb_dot[None] <= 0:
             c.lb_retry[None] = 1
             c.lb_count[None] = 0
@@ -333,7 +334,7 @@ class FastMassSpring(ImplicitIntegrator):
         iterations, line-search halvings, friction refreezes, final residual [m/s^2]; the global
         solver and how often the matrix was factorised so far; restitution-limited and
         energy-clamped step counts."""
-        a = self._take_stats()
+        a = self.accounts.take()
         steps = max(a["steps"], 1.0)
         return {
             "steps": int(a["steps"]),
@@ -345,5 +346,5 @@ class FastMassSpring(ImplicitIntegrator):
             "jacobi_pcg_now": bool(self.matrix.jacobi_now[None]),
             "factorizations": self.matrix.factorizations,
             "lbfgs_restarts_per_step": a["lb_restarts"] / steps,
-            **self._contact_stats(a, steps),
+            **contact_stats(a, steps, self.pairs),
         }

@@ -13,8 +13,9 @@ from ...allocation import allocate
 from ...footprint import MAT, FieldCounts, per_particle, per_spring
 from ...model import code_spring
 from ..base import MB, register
-from .options import NewtonConfig
+from .accounts import contact_stats
 from .driver import ImplicitIntegrator
+from .options import NewtonConfig
 
 
 @ti.data_oriented
@@ -90,13 +91,13 @@ class ImplicitEuler(ImplicitIntegrator):
     @ti.func
     def _store_preconditioner(self, i):
         """Inverse of particle i's diagonal block (mass, springs, friction), filtered if held."""
-        self.hessian.precond[i] = self._filtered_inverse(i, self.hessian.diagonal(i, self.fric_hess[i]))
+        self.hessian.precond[i] = self.objective.filtered_inverse(i, self.hessian.diagonal(i, self.objective.fric_hess[i]))
 
     # PCG operator: the filtered Hessian H = M + h^2 K_psd + h D + friction, applied per particle.
     @ti.func
     def apply(self, src: ti.template(), dst: ti.template()):
         for i in range(self.n):
-            dst[i] = self._filter(i, self.hessian.product(i, src, self.fric_hess[i]))
+            dst[i] = self.objective.filter(i, self.hessian.product(i, src, self.objective.fric_hess[i]))
         if ti.static(self._has_pairs()):
             self.pairs.apply(src, dst)
 
@@ -112,7 +113,7 @@ class ImplicitEuler(ImplicitIntegrator):
         """Averages per step since the last call (or reset): Newton and CG iterations, line-search
         halvings, friction refreezes, the final residual [m/s^2] (see ``_residual``); counts of steps
         whose restitution was limited to the energy the step lost, and of energy-clamped steps."""
-        a = self._take_stats()
+        a = self.accounts.take()
         steps = max(a["steps"], 1.0)
         return {
             "steps": int(a["steps"]),
@@ -121,5 +122,5 @@ class ImplicitEuler(ImplicitIntegrator):
             "cg_iterations_per_newton": a["cg"] / max(a["outer"], 1.0),
             "line_search_halvings_per_step": a["ls"] / steps,
             "final_residual_m_s2": a["res"] / steps,
-            **self._contact_stats(a, steps),
+            **contact_stats(a, steps, self.pairs),
         }

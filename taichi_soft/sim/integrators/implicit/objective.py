@@ -19,10 +19,10 @@ multipliers are (docs/implicit.md).
 
 import taichi as ti
 
+from ...allocation import allocate
 from ...footprint import MAT, VEC, per_particle, per_spring
 from ...forces import spring_energy, spring_energy_derivatives
 from ...model import code_spring, end_b_spring, is_end_a
-from .scalars import RES_HISTORY
 
 
 @ti.func
@@ -51,7 +51,21 @@ def lagged_friction(disp, nrm, c, eps):
 
 @ti.data_oriented
 class Objective:
-    """Mixin of ``ImplicitIntegrator``: fields and ti.funcs of the objective."""
+    """The step's objective g, its gradient and its values: a part of ``ImplicitIntegrator``.
+
+    Given at construction: the ``model``, the ``terrain``, the step's scalars ``sc`` (scalars.py),
+    the ``scheme`` (scheme.py: u_base, the step's base), the terrain ``contact`` (contact.py: the
+    active set and friction) and the ``operator``, the solver whose linear operator the gradient pass
+    fills (its ti.funcs ``_store_spring_hessian(s, block)``, ``_store_preconditioner(i)`` and
+    ``_grab_factored(i)``). ``pairs`` (pairs.PairContacts) is given by the solver when it builds its
+    body-body pairs, before any kernel compiles; None: a scene of one body, no pair code.
+
+    Holds the step's start (x_n, v_n, the target yd), its iterate u with the search direction dx
+    and the line-search trial, and what the gradient pass leaves (grad, rhs, fric_hess): the
+    driver's phases and the direction read and write them. Writes the objective's members of
+    ``sc``: res2, n_active, n_pairs, lam_change, lam_sum (gradient); f_trial, e_trial, dec,
+    step_trial (trial).
+    """
 
     # The solve iterates on displacements from x_n (u, u_trial, yd): in f32 a position near 9 m
     # rounds to 1e-6 m, as much as a 1 ms step's motion changes per step, and the rounding was
@@ -73,30 +87,63 @@ class Objective:
         "spring_grad": per_spring("d(h^2 (E + D))/dx_a per spring [kg m]", VEC),
     }
 
-    def _init_objective(self, model):
+    def __init__(self, model, terrain, sc, scheme, contact, operator):
+        """Allocates the fields only (no write: the owner's pending SNode tree stays open; the
+        owner sets the values once every field is allocated)."""
+        self.model, self.terrain, self.sc, self.scheme, self.contact = model, terrain, sc, scheme, contact
+        self.operator = operator
+        self.pairs = None
+        self.n = model.n_particles
+        allocate(self, self.BUFFERS, self.n, model.n_springs)
         self.fric_eps = ti.field(float, ())  # friction smoothing length friction_velocity * h [m]
         self.friction_velocity = ti.field(float, ())  # [m/s], from the option (a field: read in kernels)
         self.total_mass = ti.field(float, ())  # sum of free particles' masses [kg] (see _sync_masses)
         self.h2 = ti.field(float, ())  # h^2 of the current step [s^2]
         # 1: nothing but inertia depends on where the whole system is (no terrain, nothing pinned),
-        # so the step can minimise g exactly over rigid translations (``_translation_minimum``)
+        # so the step can minimise g exactly over rigid translations (``translation_minimum``)
         self.translation_free = ti.field(ti.i32, ())
-        self.translation_free[None] = int(not self.terrain.has_contact and not (model.mass_np <= 0).any())
         self.shift = ti.Vector.field(3, float, ())  # that translation [m]
 
-    @ti.func
-    def _free(self, i):
-        """Pinned particles (inverse mass 0) follow their own velocity and are not solved for."""
-        return self.model.free(i)
+    def _has_pairs(self) -> bool:
+        return self.pairs is not None
 
     @ti.func
-    def _from_base(self, i, xi):
+    def filter(self, i, q):
+        """q with what particle i cannot move removed: all of it if pinned, the normal component
+        if held on the terrain (Baraff & Witkin 1998, Sec. 5.3)."""
+        out = q
+        if not self.model.free(i):
+            out = ti.Vector.zero(float, 3)
+        elif ti.static(self.terrain.has_contact):
+            out = self.contact.filter(i, q)
+        return out
+
+    @ti.func
+    def filtered_inverse(self, i, block):
+        """Inverse of particle i's diagonal 3x3 ``block`` as a block-Jacobi preconditioner uses it:
+        0 if pinned; if held on the terrain, S (S B S + N N^T)^-1 S (S = I - N N^T: the constrained
+        block, kept invertible; its inverse maps the tangent plane to itself, so PCG stays there)."""
+        pinv = ti.Matrix.zero(float, 3, 3)
+        if self.model.free(i):
+            held = 0
+            if ti.static(self.terrain.has_contact):
+                held = self.contact.active[i]
+            if held:
+                nrm = self.contact.normal[i]
+                sp = ti.Matrix.identity(float, 3) - nrm.outer_product(nrm)
+                pinv = sp @ (sp @ block @ sp + nrm.outer_product(nrm)).inverse() @ sp
+            else:
+                pinv = block.inverse()
+        return pinv
+
+    @ti.func
+    def from_base(self, i, xi):
         """Particle i's displacement from the step's base, xi - x_n - u_base [m] (h_e times its end
         velocity: what the dampers and friction measure)."""
         return xi - self.x_prev[i] - self.scheme.u_base[i]
 
     @ti.func
-    def _spring_terms(self, x: ti.template(), s, dt):
+    def spring_terms(self, x: ti.template(), s, dt):
         """(gradient of h^2 (E + D) w.r.t. end a [kg m], h^2 E_s Hessian block + h kd l l^T [kg])."""
         m = self.model
         a, b = m.spring_ends[s][0], m.spring_ends[s][1]
@@ -109,7 +156,7 @@ class Objective:
         return dt * dt * ge + (dt * kd * l.dot(u)) * l, dt * dt * he + (dt * kd) * l.outer_product(l)
 
     @ti.func
-    def _gradient(self, x: ti.template(), dt):
+    def gradient(self, x: ti.template(), dt):
         """grad g(x), the filtered residual ``rhs`` and its norm (``sc.res2``), from one pass over springs
         and one gather per particle. The contact active set (hold, release, multipliers) is updated
         per particle by the terrain contact part (``contact.gradient``, contact.py). The same passes
@@ -118,9 +165,9 @@ class Objective:
         kernel's compile time."""
         m = self.model
         for s in range(m.n_springs):
-            g, hs = self._spring_terms(x, s, dt)
+            g, hs = self.spring_terms(x, s, dt)
             self.spring_grad[s] = g
-            self._store_spring_hessian(s, hs)
+            self.operator._store_spring_hessian(s, hs)
         self.sc.res2[None] = 0.0
         self.sc.n_active[None] = 0.0
         self.sc.n_pairs[None] = 0.0
@@ -137,11 +184,11 @@ class Objective:
                 else:
                     gi -= self.spring_grad[end_b_spring(s)]
             r = ti.Vector.zero(float, 3)
-            if self._free(i):
+            if self.model.free(i):
                 if ti.static(self._has_pairs()):
                     gi += self.pairs.grad[i]
                 if ti.static(self.terrain.has_contact):
-                    gi, self.fric_hess[i] = self.contact.gradient(i, self._from_base(i, x[i]), gi, dt,
+                    gi, self.fric_hess[i] = self.contact.gradient(i, self.from_base(i, x[i]), gi, dt,
                                                                   self.fric_eps[None])
                 if ti.static(self._has_pairs()):
                     # the pairs' diagonal blocks join the terrain friction's (just written)
@@ -150,7 +197,7 @@ class Objective:
                     else:
                         self.fric_hess[i] = self.pairs.hess[i]
                 if ti.static(self.model.has_grab()):
-                    gi = self._grab_gradient(i, x[i], gi, dt)
+                    gi = self.grab_gradient(i, x[i], gi, dt)
                 r = -gi
                 if ti.static(self.terrain.has_contact):
                     if self.contact.active[i]:
@@ -161,10 +208,10 @@ class Objective:
             self.grad[i] = gi
             self.rhs[i] = r
             self.sc.res2[None] += r.dot(r) * m.inv_mass[i]
-            self._store_preconditioner(i)
+            self.operator._store_preconditioner(i)
 
     @ti.func
-    def _trial(self, x: ti.template(), dt):
+    def trial(self, x: ti.template(), dt):
         """x_trial = x + alpha dx (alpha = ``sc.alpha``) made feasible (``contact.project``); the
         objective there (``sc.f_trial``), its spring energy, grad . (x_trial - x) and the largest move."""
         m = self.model
@@ -185,7 +232,7 @@ class Objective:
                     ui = xi - self.x_prev[i]
             self.x_trial[i] = xi
             self.u_trial[i] = ui
-            if self._free(i):
+            if self.model.free(i):
                 if ti.static(self._has_pairs()):
                     self.pairs.track(i, ui)  # the trust region
                 diff = ui - self.yd[i]
@@ -196,7 +243,7 @@ class Objective:
                     self.sc.e_trial[None] += m.grab.energy(i, xi)  # counted with the springs' energy
                 if ti.static(self.terrain.has_contact):
                     if self.contact.frozen(i):
-                        self.sc.f_trial[None] += self.contact.trial_friction(i, self._from_base(i, xi),
+                        self.sc.f_trial[None] += self.contact.trial_friction(i, self.from_base(i, xi),
                                                                              self.fric_eps[None])
             move = xi - x[i]
             self.sc.dec[None] += self.grad[i].dot(move)
@@ -214,12 +261,13 @@ class Objective:
             self.pairs.trial_end(self.x_trial, self.u_trial, dt)
 
     @ti.func
-    def _translation_minimum(self, x: ti.template()):
+    def translation_minimum(self, x: ti.template()):
         """Move x by the rigid translation that minimises g exactly (free space only, see
         ``translation_free``): springs, dampers and body-body pairs are invariant under it, so it is
         the one that zeroes sum_i m_i (x_i - y_i), i.e. the step conserves linear momentum exactly
         however early the iteration stopped (an inexact solve leaves a momentum error of the order of
-        its residual; between colliding bodies it was 5e-4 of a body's momentum). It only lowers g."""
+        its residual; between colliding bodies it was 5e-4 of a body's momentum). It only lowers g.
+        Returns 1 if it moved x (the residual ``sc.res2`` then is the moved state's), else 0."""
         m = self.model
         free = self.translation_free[None]
         if ti.static(m.has_grab()):
@@ -237,14 +285,10 @@ class Objective:
             # returned state's): springs, dampers and pairs sum to zero over the bodies, so
             # sum_i g_i = -M c, and sum_i |g_i + m_i c|^2 / m_i = res2 - M |c|^2 exactly.
             self.sc.res2[None] = ti.max(self.sc.res2[None] - self.total_mass[None] * c.dot(c), 0.0)
-            res = self._residual()
-            k = self.sc.evals[None] - 1
-            if 0 <= k and k < RES_HISTORY:
-                self.res_history[k] = res
-            self.sc.res_prev[None] = res
+        return free
 
     @ti.func
-    def _grab_gradient(self, i, xi, gi, dt):
+    def grab_gradient(self, i, xi, gi, dt):
         """gi plus the grab's gradient (grab.py); its Hessian goes with the friction block. While
         particle i is grabbed it counts in ``sc.n_active`` unless the solver's matrix carries the grab
         (``_grab_factored``): a matrix that lacks the grab's diagonal term takes the held-particle
@@ -254,18 +298,12 @@ class Objective:
         if ti.static(self.terrain.has_contact or self._has_pairs()):
             fh = self.fric_hess[i]  # this gradient's friction and pair blocks (written just before)
         self.fric_hess[i] = fh + gh * ti.Matrix.identity(float, 3)
-        if gh > 0 and not self._grab_factored(i):
+        if gh > 0 and not self.operator._grab_factored(i):
             self.sc.n_active[None] += 1.0
         return gi + gg
 
     @ti.func
-    def _grab_factored(self, i):
-        """Whether the solver's matrix already carries the grab on particle i (fast_mass_spring's
-        factor does, local_global.py); otherwise a grabbed particle counts as held."""
-        return False
-
-    @ti.func
-    def _residual(self):
+    def residual(self):
         """Residual [m/s^2]: sqrt(sum_i |r_i|^2 / m_i / sum_i m_i) / h^2, the mass-weighted RMS of
         the unbalanced force per unit mass (r: the gradient with held particles' normal
         components removed, the KKT residual). An acceleration means the same at every step size."""

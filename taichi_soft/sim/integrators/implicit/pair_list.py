@@ -135,8 +135,8 @@ class PairList(BodyGrid):
         o = self.owner
         self.trial_begin()
         for i in range(self.n):
-            if o._free(i):
-                self._admit(i, o.u[i] + o.dx[i] - self.base[i])
+            if o.model.free(i):
+                self._admit(i, o.objective.u[i] + o.objective.dx[i] - self.base[i])
         self.again[None] = 0
         if self.outside():
             self.again[None] = 1
@@ -148,9 +148,9 @@ class PairList(BodyGrid):
         o = self.owner
         self._stash()
         for i in range(self.n):
-            self.base[i] = o.u[i]
-            self.path[i] = o.dx[i]
-        self._collect(o.x_prev)
+            self.base[i] = o.objective.u[i]
+            self.path[i] = o.objective.dx[i]
+        self._collect(o.objective.x_prev)
         self._restore(1.0)
         self.acc.gathers[None] += 1.0
 

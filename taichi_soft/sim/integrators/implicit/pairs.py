@@ -135,7 +135,7 @@ class PairContacts(PairList):
         self._collect(xp)
         load = ti.cast(1.0, float)
         if self.owner.sc.h2_prev[None] > 0:
-            load = self.owner.h2[None] / self.owner.sc.h2_prev[None]
+            load = self.owner.objective.h2[None] / self.owner.sc.h2_prev[None]
         self._restore(load)
         self.acc.pairs[None] += ti.cast(self.n_pairs[None], ti.f64)
         # The penalty energy at x_n with this step's geometry, less what the last step ended with.
@@ -168,7 +168,7 @@ class PairContacts(PairList):
         x_i [kg m], Hessian block [kg]); the terrain's Huber-smoothed lagged friction on the relative
         tangential displacement."""
         i, j = self.pa[p], self.pb[p]
-        return lagged_friction(disp[i] - disp[j], nrm, self.terrain.friction[None] * lam, self.owner.fric_eps[None])
+        return lagged_friction(disp[i] - disp[j], nrm, self.terrain.friction[None] * lam, self.owner.objective.fric_eps[None])
 
     @ti.func
     def _gap(self, p, d):
@@ -277,8 +277,8 @@ class PairContacts(PairList):
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             hb = self.block[p]
-            dst[i] -= self.owner._filter(i, hb @ src[j])
-            dst[j] -= self.owner._filter(j, hb @ src[i])
+            dst[i] -= self.owner.objective.filter(i, hb @ src[j])
+            dst[j] -= self.owner.objective.filter(j, hb @ src[i])
 
     @ti.func
     def trial_end(self, xt: ti.template(), ut: ti.template(), dt):
@@ -339,9 +339,9 @@ class PairContacts(PairList):
             i, j = self.pa[p], self.pb[p]
             ov, w, nrm = self._gap(p, x[i] - x[j])
             if ov > 0 and w > 0:
-                approach = nrm.dot(self.owner.v_prev[i] - self.owner.v_prev[j])
+                approach = nrm.dot(self.owner.objective.v_prev[i] - self.owner.objective.v_prev[j])
                 if -approach > t.bounce_threshold[None]:
-                    vn = nrm.dot(self.owner.u[i] - self.owner.u[j]) / dt
+                    vn = nrm.dot(self.owner.objective.u[i] - self.owner.objective.u[j]) / dt
                     target = -t.restitution[None] * approach
                     if target > vn:
                         inv_i, inv_j = self.model.inv_mass[i], self.model.inv_mass[j]

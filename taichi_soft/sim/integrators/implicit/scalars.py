@@ -7,7 +7,7 @@ write these members, so the serial (in-kernel) and parallel (Python-driven) driv
 decisions. Read and written as ``sc.<name>[None]`` in kernels and from Python scope alike (a
 member is a 0-D field: from Python, one read per member, not the whole struct).
 
-``accounts(STEP_ACCOUNTS)`` (``ImplicitIntegrator.acc``): f64 sums over the steps since the last
+``accounts(STEP_ACCOUNTS)`` (``StepAccounts.acc``): f64 sums over the steps since the last
 ``stats()`` call (accounts.py); ``accounts(PAIR_ACCOUNTS)``: the body-body pair terms' (pairs.py).
 """
 

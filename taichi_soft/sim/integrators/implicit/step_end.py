@@ -6,13 +6,45 @@ resort, the energy clamp. Its phases are walked by both drivers (walk.py).
 
 import taichi as ti
 
+from ...allocation import allocate
+from ...footprint import VEC, per_particle
+
 
 @ti.data_oriented
 class StepEnd:
-    """Mixin of ``ImplicitIntegrator``: the end of a step."""
+    """The end of a step (phase 4): a part of ``ImplicitIntegrator``.
+
+    Given at construction: the ``model``, the ``terrain``, the step's scalars ``sc`` (it reads the
+    energies the objective and the start left there: h_start, h_scale, e_cur; it writes k_solve,
+    g_end, n_bounce, bounce_a, bounce_b, k_end, bounce_limited, clamped), the ``objective`` (u, v_n,
+    the residual), the terrain ``contact`` and its restitution ``spread``, the ``scheme`` (u_base,
+    and it records the step's end), the ``accounts`` (it records the step) and the ``owner``, the
+    solver whose ``Integrator._finish`` ends each particle's step and whose ``tol2`` the accounts
+    judge the step's residual by. ``pairs`` (pairs.PairContacts) is given by the solver with its
+    body-body pairs; None: no pair code.
+    """
+
+    BUFFERS = {
+        "v_new": per_particle("velocity from the solve [m/s]", VEC),
+        "dv": per_particle("restitution's velocity change [m/s]", VEC),
+    }
+
+    def __init__(self, model, terrain, sc, objective, contact, spread, scheme, accounts, owner):
+        """Allocates the fields only (no write: the owner's pending SNode tree stays open)."""
+        self.model, self.terrain, self.sc, self.objective = model, terrain, sc, objective
+        self.contact, self.spread, self.scheme, self.accounts = contact, spread, scheme, accounts
+        self.owner = owner
+        self.pairs = None
+        self.n = model.n_particles
+        allocate(self, self.BUFFERS, self.n, 0)
+        self.clamp_on = ti.field(ti.i32, ())  # 1: the last-resort clamp is on (the solver's option)
+        self.energy_tol = ti.field(float, ())  # relative energy growth counted as round-off
+
+    def _has_pairs(self) -> bool:
+        return self.pairs is not None
 
     @ti.func
-    def _end_velocities(self, x: ti.template(), dt):
+    def velocities(self, x: ti.template(), dt):
         """Solved velocities v = (u - u_base)/h_e ((x - x_n)/h for backward Euler; dt: this step's
         h_eff), and the restitution each held particle asks for (its normal part prescribed for the
         spread, restitution.py; the tangential friction loss kept local) and the body-body responses."""
@@ -21,24 +53,33 @@ class StepEnd:
         self.sc.g_end[None] = 0.0
         self.sc.n_bounce[None] = 0.0
         if ti.static(not self.terrain.has_contact):
-            self._translation_minimum(x)
+            self._translate(x)
         if ti.static(self._has_pairs()):
             self.pairs.end(x, dt)
         for i in range(self.n):
-            vi = (self.u[i] - self.scheme.u_base[i]) / dt
+            vi = (self.objective.u[i] - self.scheme.u_base[i]) / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
-                delta = self.spread.split(i, self.contact.bounce(i, vi, x[i], self.v_prev[i]))
+                delta = self.spread.split(i, self.contact.bounce(i, vi, x[i], self.objective.v_prev[i]))
             if ti.static(self._has_pairs()):
                 delta += self.pairs.dv[i]
             self.v_new[i] = vi
             self.dv[i] = delta
-            if self._free(i):
+            if self.model.free(i):
                 self.sc.k_solve[None] += 0.5 * m.mass[i] * vi.dot(vi)
-                self.sc.g_end[None] -= m.mass[i] * m.gravity[None].dot(self.u[i])
+                self.sc.g_end[None] -= m.mass[i] * m.gravity[None].dot(self.objective.u[i])
 
     @ti.func
-    def _end_finish(self, x: ti.template(), v: ti.template(), step):
+    def _translate(self, x: ti.template()):
+        """The objective's exact minimum over rigid translations (free space only), the residual it
+        leaves recorded as the last gradient's (so the reported residual is the returned state's)."""
+        if self.objective.translation_minimum(x):
+            res = self.objective.residual()
+            self.accounts.residual_at(self.sc.evals[None] - 1, res)
+            self.sc.res_prev[None] = res
+
+    @ti.func
+    def finish(self, x: ti.template(), v: ti.template(), step):
         """After the restitution spread: every restitution and body-body response scaled to the energy
         the step lost; ``_finish``; then, if the step still ends with more energy than it began with
         (beyond round-off), the counted clamp."""
@@ -50,15 +91,15 @@ class StepEnd:
             for i in range(self.n):
                 delta = self.spread.total(i, self.dv[i])
                 self.dv[i] = delta
-                if self._free(i):
+                if self.model.free(i):
                     self.sc.bounce_a[None] += 0.5 * m.mass[i] * delta.dot(delta)
                     self.sc.bounce_b[None] += m.mass[i] * self.v_new[i].dot(delta)
             lost = self.sc.h_start[None] - (self.sc.k_solve[None] + self.sc.g_end[None] + self.sc.e_cur[None])
             scale = self._bounce_scale(lost)
         self.sc.k_end[None] = 0.0
         for i in range(self.n):
-            self._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
-            if self._free(i):
+            self.owner._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
+            if self.model.free(i):
                 self.sc.k_end[None] += 0.5 * m.mass[i] * v[i].dot(v[i])
         # Last resort, counted in stats(): take the excess out of the kinetic energy.
         excess = self.sc.k_end[None] + self.sc.g_end[None] + self.sc.e_cur[None] - self.sc.h_start[None]
@@ -70,10 +111,10 @@ class StepEnd:
             if k_end > 0:
                 f = ti.sqrt(ti.max(k_end - excess, 0.0) / k_end)
         for i in range(self.n):
-            if f < 1.0 and self._free(i):
+            if f < 1.0 and self.model.free(i):
                 v[i] *= f
         self.scheme.record(x, v)
-        self._account()
+        self.accounts.record(self.objective.residual(), self.owner.tol2[None])
 
     @ti.func
     def _bounce_scale(self, budget):

@@ -73,7 +73,7 @@ STEP = Walk(_step)
 
 def _cg_direction(integ, ph, x):
     """dx from rhs by the solver's PCG (Newton's direction)."""
-    ph.cg(integ.rhs, integ.dx)
+    ph.cg(integ.objective.rhs, integ.objective.dx)
 
 
 CG_DIRECTION = Walk(_cg_direction)
@@ -96,7 +96,7 @@ class InKernel:
 
     @ti.func
     def gradient(self, x: ti.template(), dt):
-        self.i._gradient(x, dt)
+        self.i.objective.gradient(x, dt)
         self.i._after_gradient(dt)
 
     @ti.func
@@ -113,7 +113,7 @@ class InKernel:
 
     @ti.func
     def trial(self, x: ti.template(), dt):
-        self.i._trial(x, dt)
+        self.i.objective.trial(x, dt)
         self.i._line_search_decide()
 
     @ti.func
@@ -128,7 +128,7 @@ class InKernel:
 
     @ti.func
     def end_velocities(self, x: ti.template(), dt):
-        self.i._end_velocities(x, dt)
+        self.i.end.velocities(x, dt)
 
     @ti.func
     def bounce_rhs(self):
@@ -136,7 +136,7 @@ class InKernel:
 
     @ti.func
     def end_finish(self, x: ti.template(), v: ti.template(), step):
-        self.i._end_finish(x, v, step)
+        self.i.end.finish(x, v, step)
 
 
 @ti.data_oriented
@@ -155,7 +155,7 @@ class Launches:
 
     @ti.kernel
     def gradient(self, x: ti.template(), dt: float):
-        self.i._gradient(x, dt)
+        self.i.objective.gradient(x, dt)
         self.i._after_gradient(dt)
 
     @ti.kernel
@@ -172,7 +172,7 @@ class Launches:
 
     @ti.kernel
     def trial(self, x: ti.template(), dt: float):
-        self.i._trial(x, dt)
+        self.i.objective.trial(x, dt)
         self.i._line_search_decide()
 
     @ti.kernel
@@ -189,7 +189,7 @@ class Launches:
 
     @ti.kernel
     def end_velocities(self, x: ti.template(), dt: float):
-        self.i._end_velocities(x, dt)
+        self.i.end.velocities(x, dt)
 
     @ti.kernel
     def bounce_rhs(self):
@@ -197,4 +197,4 @@ class Launches:
 
     @ti.kernel
     def end_finish(self, x: ti.template(), v: ti.template(), step: ti.i32):
-        self.i._end_finish(x, v, step)
+        self.i.end.finish(x, v, step)
