@@ -26,6 +26,11 @@ class StepAccounts:
         self.n_history = ti.field(ti.i32, ())
 
     @ti.func
+    def begin_step(self):
+        """A new step: its residual history starts empty."""
+        self.n_history[None] = 0
+
+    @ti.func
     def residual_at(self, k, res):
         """The residual ``res`` [m/s^2] of the step's gradient k (0: at its start; the first
         ``RES_HISTORY`` are kept; a negative k, before any gradient, is not)."""

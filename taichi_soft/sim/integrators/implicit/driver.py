@@ -206,7 +206,7 @@ class ImplicitIntegrator(Integrator):
             c[None] = 0
         self.sc.res_prev[None] = 1e30  # no release before a residual is known
         self.sc.step[None] = 1e30
-        self.accounts.n_history[None] = 0
+        self.accounts.begin_step()
         # Phase 0 evaluates the reference g(x_n) and E(x_n): one trial at alpha = 0.
         self._line_search_begin(0.0, 0)
 
@@ -363,7 +363,8 @@ class ImplicitIntegrator(Integrator):
 
     def residual(self) -> float:
         """Residual [m/s^2] of the last gradient evaluation (see ``_residual``)."""
-        return float(np.sqrt(max(float(self.sc.res2[None]), 0.0) / float(self.objective.total_mass[None]))) / float(self.objective.h2[None])
+        ob = self.objective
+        return float(np.sqrt(max(float(self.sc.res2[None]), 0.0) / float(ob.total_mass[None]))) / float(ob.h2[None])
 
     def residual_history(self) -> list[float]:
         """Residual [m/s^2] at each gradient evaluation of the last step (the first at the start)."""

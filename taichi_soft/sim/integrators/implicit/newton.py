@@ -91,7 +91,8 @@ class ImplicitEuler(ImplicitIntegrator):
     @ti.func
     def _store_preconditioner(self, i):
         """Inverse of particle i's diagonal block (mass, springs, friction), filtered if held."""
-        self.hessian.precond[i] = self.objective.filtered_inverse(i, self.hessian.diagonal(i, self.objective.fric_hess[i]))
+        block = self.hessian.diagonal(i, self.objective.fric_hess[i])
+        self.hessian.precond[i] = self.objective.filtered_inverse(i, block)
 
     # PCG operator: the filtered Hessian H = M + h^2 K_psd + h D + friction, applied per particle.
     @ti.func

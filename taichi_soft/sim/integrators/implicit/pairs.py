@@ -168,7 +168,8 @@ class PairContacts(PairList):
         x_i [kg m], Hessian block [kg]); the terrain's Huber-smoothed lagged friction on the relative
         tangential displacement."""
         i, j = self.pa[p], self.pb[p]
-        return lagged_friction(disp[i] - disp[j], nrm, self.terrain.friction[None] * lam, self.owner.objective.fric_eps[None])
+        return lagged_friction(disp[i] - disp[j], nrm, self.terrain.friction[None] * lam,
+                               self.owner.objective.fric_eps[None])
 
     @ti.func
     def _gap(self, p, d):
