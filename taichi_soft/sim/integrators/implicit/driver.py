@@ -362,7 +362,7 @@ class ImplicitIntegrator(Integrator):
         self.scheme.reset()  # BDF2 starts its history again
 
     def residual(self) -> float:
-        """Residual [m/s^2] of the last gradient evaluation (see ``_residual``)."""
+        """Residual [m/s^2] of the last gradient evaluation (see ``Objective.residual``)."""
         ob = self.objective
         return float(np.sqrt(max(float(self.sc.res2[None]), 0.0) / float(ob.total_mass[None]))) / float(ob.h2[None])
 

@@ -112,8 +112,9 @@ class ImplicitEuler(ImplicitIntegrator):
 
     def stats(self) -> dict:
         """Averages per step since the last call (or reset): Newton and CG iterations, line-search
-        halvings, friction refreezes, the final residual [m/s^2] (see ``_residual``); counts of steps
-        whose restitution was limited to the energy the step lost, and of energy-clamped steps."""
+        halvings, friction refreezes, the final residual [m/s^2] (see ``Objective.residual``);
+        counts of steps whose restitution was limited to the energy the step lost, and of
+        energy-clamped steps."""
         a = self.accounts.take()
         steps = max(a["steps"], 1.0)
         return {
