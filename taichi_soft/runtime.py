@@ -38,6 +38,13 @@ FAST_MATH_CLI_DEFAULT = True
 # (tests/conftest.py sets it, child processes inherit it) and short experiments.
 OPTIMIZE_ENV = "TAICHI_SOFT_OPTIMIZE"
 
+# Taichi's offline kernel cache (~/.cache/taichi) evicts its least recently used quarter whenever it
+# passes 100 MiB, checked as each process exits. The kernels of every integrator, terrain and
+# precision take more than that (the test suite leaves 115 MiB), so at the default every process
+# exit evicted kernels the next process compiled again: measured 2026-12-06 on the 2-core VM, the
+# by_stiffness test took 31 s in a suite run against 13 s with its kernels cached. 1 GiB holds them all.
+KERNEL_CACHE_BYTES = 1 << 30
+
 
 def optimize_default() -> bool:
     """Whether Taichi's IR optimisation passes run: on unless ``TAICHI_SOFT_OPTIMIZE=0``."""
@@ -67,7 +74,8 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
         ti_arch = ti.gpu
     optimize = optimize_default() if optimize is None else bool(optimize)
     compile_speed.install()
-    options = dict(fast_math=bool(fast_math), offline_cache=True, advanced_optimization=optimize)
+    options = dict(fast_math=bool(fast_math), offline_cache=True, advanced_optimization=optimize,
+                   offline_cache_max_size_of_files=KERNEL_CACHE_BYTES)
     options.update(kwargs)
     # ti.init prints a "Starting on arch" banner to stdout; keep stdout for our own output.
     with contextlib.redirect_stdout(io.StringIO()):
