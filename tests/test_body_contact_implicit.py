@@ -7,6 +7,9 @@ import pytest
 from physics_helpers import total_energy
 from taichi_soft.sim.lattice import lattice_points
 
+# Module-level caches hold Taichi objects across tests: one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 G = 9.8
 SIZE, N = 1.0, 4

@@ -5,6 +5,9 @@ import trimesh
 
 from taichi_soft.render.caches import read_pc2
 
+# The module fixture keeps the recorder's surface (Taichi fields): one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):

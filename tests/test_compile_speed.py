@@ -13,6 +13,9 @@ def test_installed_on_the_pinned_taichi():
     from taichi.lang import kernel_impl
 
     assert kernel_impl._get_tree_and_ctx is compile_speed._tree_and_ctx
+    from taichi.lang import impl, snode
+
+    assert impl.get_traceback is snode.get_traceback is compile_speed._declaration_traceback
 
 
 @ti.func
@@ -47,3 +50,18 @@ def test_a_compile_error_still_names_the_file_line_and_function():
     assert "undefined_name" in text and __file__ in text and "in broken" in text
     line = next(i for i, src in enumerate(open(__file__), 1) if "return undefined_name" in src)
     assert f"line {line}" in text, text
+
+
+def _declare_without_shape():
+    return ti.field(ti.f64)
+
+
+def test_an_unplaced_field_is_still_said_with_where_it_was_declared():
+    # The declaration note keeps the innermost frames only (compile_speed.DECLARATION_FRAMES):
+    # the function that declared the field and its caller are among them.
+    _declare_without_shape()
+    with pytest.raises(RuntimeError) as err:
+        ti.field(ti.f64, shape=2)[0] = 1.0  # materialising the runtime finds the unplaced field
+    text = str(err.value)
+    assert "not placed" in text and __file__ in text, text
+    assert "in _declare_without_shape" in text and "in test_an_unplaced_field_is_still_said" in text, text

@@ -29,6 +29,9 @@ from physics_helpers import build
 from taichi_soft.sim.integrators import make_integrator
 from taichi_soft.sim.integrators.implicit.health import CLAMP_WARN_SHARE
 
+# Module fixtures hold Taichi objects across tests: one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 TIGHT = {  # converged solves: stop on the residual alone [m/s^2]
     "implicit_euler": {"newton_iters": 50, "newton_tol": 2e-2, "cg_iters": 2000, "forcing": "fixed", "cg_tol": 1e-8,

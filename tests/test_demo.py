@@ -17,6 +17,9 @@ from taichi_soft.sim.integrators import names
 
 from conftest import ROOT, missing_tool
 
+# Module fixtures hold Taichi objects across tests: one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 SMALL = ["body.0.n=3", "body.0.size=1.0", "body.0.center=[0, 1.0, 0]"]  # 27 particles: fast
 
 

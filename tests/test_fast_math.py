@@ -12,6 +12,9 @@ from taichi_soft.sim.integrators import REGISTRY, make_integrator
 
 from physics_helpers import build, simulate, stretched
 
+# Module-level caches hold Taichi objects across tests: one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 EXPLICIT = [name for name, cls in REGISTRY.items() if not cls.implicit]
 # Butcher tableaus of the textbook methods, written out here (not read from the classes).
 TABLEAUS = {"explicit_euler": ([[]], [1.0]), "midpoint": ([[], [0.5]], [0.0, 1.0]),

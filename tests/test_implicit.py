@@ -14,6 +14,9 @@ import implicit_probe as probe
 from physics_helpers import build, default_cube_sim, moving_cube, simulate, stretched, total_energy
 from taichi_soft.sim.integrators import REGISTRY, make_integrator
 
+# Module-level caches hold Taichi objects across tests: one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 EXPLICIT = [name for name, cls in REGISTRY.items() if not cls.implicit]
 TIGHT = {

@@ -12,6 +12,9 @@ import pytest
 from physics_helpers import build, default_cube_sim, stretched, total_energy
 from taichi_soft.sim.integrators import make_integrator
 
+# Module-level caches hold Taichi objects across tests: one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 FRAME = 1.0 / 60.0
 PENETRATION_TOL = 1e-9  # [m] as test_implicit.py: only round-off below the surface

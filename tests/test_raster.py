@@ -9,6 +9,9 @@ import taichi as ti
 
 from taichi_soft.render.camera import CameraSpec
 
+# Module fixtures hold Taichi objects across tests: one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 N = 96
 CAM = CameraSpec((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 90.0)
 BACKGROUND = (0.0, 0.0, 0.0)

@@ -17,6 +17,9 @@ from conftest import ROOT, missing_tool, run_cli
 from taichi_soft.render import overlay
 from taichi_soft.render.camera import CameraSpec, project, projection_matrix, scene_camera, view_matrix
 
+# Module fixtures hold Taichi objects across tests: one runtime for the module (conftest.py).
+pytestmark = pytest.mark.taichi_shared
+
 SMALL = ["--set", "body.0.n=4", "--resolution", "96x64", "--fps", "20"]
 NO_VULKAN = {"VK_ICD_FILENAMES": "/nonexistent"}  # the Vulkan loader then finds no driver at all
 
