@@ -19,6 +19,7 @@ import taichi as ti
 from . import slabs
 from .bodies import BodyInfo
 from .lattice import SPRING_KINDS
+from .scalar_fields import assign
 from .spring_codes import (N_KINDS, code_spring, end_a_code, end_b_code, end_b_spring, group_kind, is_end_a,
                            spring_group)
 from .state import State
@@ -264,7 +265,7 @@ class Model:
 
     def set_gravity(self, g):
         """Gravity [m/s^2] as a 3-vector."""
-        self.gravity[None] = tuple(float(c) for c in g)
+        assign({self.gravity: g})
 
     def spring_counts(self) -> dict:
         """Number of springs of each kind over all bodies."""

@@ -24,6 +24,8 @@ live in 0-d fields so they can be tuned between steps without recompiling.
 import numpy as np
 import taichi as ti
 
+from .scalar_fields import assign
+
 KINDS = ("none", "plane", "tilted_plane", "sphere", "bowl")
 
 # Contact coefficients (the scene's [contact] table); the one home of their defaults.
@@ -66,16 +68,10 @@ class Terrain:
     def set_contact(self, restitution=None, friction=None, epsilon=None, bounce_threshold=None, impact_friction=None):
         """Set restitution [-], friction coefficient [-], contact distance epsilon [m], bounce
         threshold [m/s] and whether friction acts on the impact impulse (bool)."""
-        if restitution is not None:
-            self.restitution[None] = restitution
-        if friction is not None:
-            self.friction[None] = friction
-        if epsilon is not None:
-            self.epsilon[None] = epsilon
-        if bounce_threshold is not None:
-            self.bounce_threshold[None] = bounce_threshold
-        if impact_friction is not None:
-            self.impact_friction[None] = int(bool(impact_friction))
+        given = {self.restitution: restitution, self.friction: friction, self.epsilon: epsilon,
+                 self.bounce_threshold: bounce_threshold,
+                 self.impact_friction: None if impact_friction is None else int(bool(impact_friction))}
+        assign({f: v for f, v in given.items() if v is not None})
 
     def reset(self, x: ti.template()):
         """Called when a state is (re)initialised; shapes with per-particle memory override it."""
@@ -188,8 +184,7 @@ class Plane(Terrain):
     def set_geometry(self, point, normal):
         """Point on the plane [m] and its normal (any length > 0; normalised here)."""
         nrm = np.asarray(normal, dtype=np.float64)
-        self.point[None] = tuple(float(c) for c in point)
-        self.normal[None] = tuple(nrm / np.linalg.norm(nrm))
+        assign({self.point: point, self.normal: nrm / np.linalg.norm(nrm)})
 
     def params(self):
         return {"point": list(self.point[None].to_numpy().tolist()),
@@ -225,8 +220,7 @@ class Sphere(Terrain):
 
     def set_geometry(self, center, radius):
         """Centre [m] and radius [m]."""
-        self.center[None] = tuple(float(c) for c in center)
-        self.radius[None] = float(radius)
+        assign({self.center: center, self.radius: radius})
 
     def params(self):
         return {"center": self.center[None].to_numpy().tolist(), "radius": float(self.radius[None])}

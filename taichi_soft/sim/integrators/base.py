@@ -30,6 +30,7 @@ from ..allocation import allocate, page_aligned_vectors
 from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
 from ..linalg import SkylineCholesky
+from ..scalar_fields import assign
 from .options import Config, choice
 
 # Parallel launches win above this many particles on a CPU. Implicit solvers (many launches per
@@ -112,8 +113,8 @@ class Integrator:
         self.options = self.configure(options, *running_target(), model_counts(model))
         self.speed2_limit = ti.field(float, ())  # divergence threshold on |v|^2 [m^2/s^2]
         self.diverged_step = ti.field(ti.i32, ())
-        self.speed2_limit[None] = DIVERGENCE_SPEED2  # after both: a write closes the pending tree
-        self.diverged_step[None] = NOT_DIVERGED
+        # after both: a write closes the pending tree
+        assign({self.speed2_limit: DIVERGENCE_SPEED2, self.diverged_step: NOT_DIVERGED})
         self.mode = self.options.mode
         self._step_counter = 0
         model.add_listener(self)

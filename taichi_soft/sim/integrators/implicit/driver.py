@@ -28,6 +28,7 @@ import taichi as ti
 from ...footprint import ADJACENCY, FieldCounts
 from ...linalg import PCG
 from ...model import CHANGED_MASSES
+from ...scalar_fields import assign
 from ..base import Integrator
 from .accounts import StepAccounts, spring_passes_per_step
 from .contact import TerrainContact
@@ -104,21 +105,16 @@ class ImplicitIntegrator(Integrator):
         # Values only after every field is allocated: the first write closes the pending SNode
         # tree, and the next field would open another (the runtime holds 512: allocation.MAX_TREES).
         self.scheme.use_bdf2(o.scheme == "bdf2")
-        self.tol_acc[None] = o.residual_tol
-        self.roundoff[None] = 16 * np.finfo(model.real).eps
-        self.end.energy_tol[None] = 1e3 * np.finfo(model.real).eps
-        self.objective.friction_velocity[None] = o.friction_velocity
-        self.objective.translation_free[None] = int(not terrain.has_contact and not (model.mass_np <= 0).any())
-        self.max_iters[None] = o.max_iterations
-        self.ls_iters[None] = o.line_search_iters
-        self.max_updates[None] = o.friction_updates
-        self.cg_iters[None] = o.cg_iters
-        self.cg_tol[None] = o.cg_tol
-        self.ew_forcing[None] = int(o.eisenstat_walker)
-        self.velocity_tol[None] = o.velocity_tol
-        # The energy account assumes no pinned particle does work on the body.
-        self.end.clamp_on[None] = int(o.energy_clamp and not np.any(model.mass_np <= 0))
-        self.contact.release_tol[None] = max(o.residual_tol, 0.1)
+        assign({self.tol_acc: o.residual_tol, self.roundoff: 16 * np.finfo(model.real).eps,
+                self.end.energy_tol: 1e3 * np.finfo(model.real).eps,
+                self.objective.friction_velocity: o.friction_velocity,
+                self.objective.translation_free: not terrain.has_contact and not (model.mass_np <= 0).any(),
+                self.max_iters: o.max_iterations, self.ls_iters: o.line_search_iters,
+                self.max_updates: o.friction_updates, self.cg_iters: o.cg_iters, self.cg_tol: o.cg_tol,
+                self.ew_forcing: o.eisenstat_walker, self.velocity_tol: o.velocity_tol,
+                # The energy account assumes no pinned particle does work on the body.
+                self.end.clamp_on: o.energy_clamp and not np.any(model.mass_np <= 0),
+                self.contact.release_tol: max(o.residual_tol, 0.1)})
         self._masses_changed = True  # (notify_model_changed) total mass and translation test to refresh
         self.in_kernel = self.IN_KERNEL(self)  # the serial driver's phases
         self.launches = self.LAUNCHES(self)  # the parallel driver's
@@ -349,8 +345,8 @@ class ImplicitIntegrator(Integrator):
         ``set_masses``: pinning one ends the step's translation invariance)."""
         if self._masses_changed:
             mass = self.model.mass_np
-            self.objective.total_mass[None] = float(np.sum(mass[mass > 0])) or 1.0
-            self.objective.translation_free[None] = int(not self.terrain.has_contact and not (mass <= 0).any())
+            assign({self.objective.total_mass: float(np.sum(mass[mass > 0])) or 1.0,
+                    self.objective.translation_free: not self.terrain.has_contact and not (mass <= 0).any()})
             self._masses_changed = False
 
     def reset(self):
