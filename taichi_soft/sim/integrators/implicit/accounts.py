@@ -6,7 +6,7 @@ clamped and unconverged steps into warnings), and the work a step costs in sprin
 import taichi as ti
 
 from .health import UNCONVERGED_FACTOR
-from .scalars import RES_HISTORY, STEP_ACCOUNTS, accounts, read_accounts
+from .scalars import RES_HISTORY, STEP_ACCOUNTS, accounts, read_accounts, zero_accounts
 
 
 @ti.data_oriented
@@ -66,7 +66,7 @@ class StepAccounts:
         return read_accounts(self.acc)
 
     def reset(self):
-        self.acc.fill(0)
+        zero_accounts(self.acc)
         self.n_history[None] = 0
 
 

@@ -74,8 +74,14 @@ class TerrainContact:
 
     def reset(self):
         """No held particle carries a force into the next step (a reset state has no history)."""
-        self.lam.fill(0)
-        self.lam_end.fill(0)
+        self._clear_loads()
+
+    @ti.kernel
+    def _clear_loads(self):
+        # one kernel, not a ``fill`` (a compile) per field
+        for i in self.lam:
+            self.lam[i] = 0.0
+            self.lam_end[i] = 0.0
 
     @ti.func
     def _friction(self, disp, nrm, lam, eps):

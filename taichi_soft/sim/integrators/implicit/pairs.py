@@ -43,7 +43,7 @@ import taichi as ti
 
 from .objective import lagged_friction
 from .pair_list import PAIRS_PER_PARTICLE, PairList, field_bytes
-from .scalars import PAIR_ACCOUNTS, accounts, read_accounts
+from .scalars import PAIR_ACCOUNTS, accounts, read_accounts, zero_accounts
 
 __all__ = ["PairContacts", "PAIRS_PER_PARTICLE", "field_bytes"]
 
@@ -100,7 +100,7 @@ class PairContacts(PairList):
         return float(self.e_end[None]), float(self.acc.refrozen[None])
 
     def reset(self):
-        self.acc.fill(0)
+        zero_accounts(self.acc)
         self.e_end[None] = 0.0
         self.n_pairs[None] = 0  # no pair carries a load into the next step
 

@@ -11,6 +11,7 @@ member is a 0-D field: from Python, one read per member, not the whole struct).
 ``stats()`` call (accounts.py); ``accounts(PAIR_ACCOUNTS)``: the body-body pair terms' (pairs.py).
 """
 
+import numpy as np
 import taichi as ti
 
 # name: meaning [unit]. f64.
@@ -121,8 +122,29 @@ def accounts(names: dict):
     return ti.Struct.field({k: ti.f64 for k in names}, shape=())
 
 
+# Read and zeroed by one kernel each: Taichi's ``to_numpy`` and ``fill`` of a struct field compile a
+# kernel per member, about 20 ms each on the 2-core VM; in a cold test-suite run those were 9 % of
+# the CPU time (py-spy, 2026-12-06), for every implicit solver built.
 def read_accounts(acc) -> dict:
     """The members of an ``accounts`` field as floats by name, then zeroed."""
-    out = {k: float(v) for k, v in acc.to_numpy().items()}
-    acc.fill(0)
-    return out
+    values = np.zeros(len(acc.keys), dtype=np.float64)
+    _take_members(acc, values)
+    return {k: float(v) for k, v in zip(acc.keys, values)}
+
+
+def zero_accounts(acc):
+    """Set every member of an ``accounts`` field to 0."""
+    _zero_members(acc)
+
+
+@ti.kernel
+def _take_members(acc: ti.template(), out: ti.types.ndarray(dtype=ti.f64, ndim=1)):
+    for j in ti.static(range(len(acc.keys))):
+        out[j] = acc.field_dict[acc.keys[j]][None]
+        acc.field_dict[acc.keys[j]][None] = 0.0
+
+
+@ti.kernel
+def _zero_members(acc: ti.template()):
+    for j in ti.static(range(len(acc.keys))):
+        acc.field_dict[acc.keys[j]][None] = 0.0
