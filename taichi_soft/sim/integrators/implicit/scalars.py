@@ -122,7 +122,7 @@ def accounts(names: dict):
     return ti.Struct.field({k: ti.f64 for k in names}, shape=())
 
 
-# Read and zeroed by one kernel each: Taichi's ``to_numpy`` and ``fill`` of a struct field compile a
+# Read and zeroed by one kernel: Taichi's ``to_numpy`` and ``fill`` of a struct field compile a
 # kernel per member, about 20 ms each on the 2-core VM; in a cold test-suite run those were 9 % of
 # the CPU time (py-spy, 2026-12-06), for every implicit solver built.
 def read_accounts(acc) -> dict:
@@ -133,18 +133,12 @@ def read_accounts(acc) -> dict:
 
 
 def zero_accounts(acc):
-    """Set every member of an ``accounts`` field to 0."""
-    _zero_members(acc)
+    """Set every member of an ``accounts`` field to 0 (the read-out's kernel, its values dropped)."""
+    _take_members(acc, np.zeros(len(acc.keys), dtype=np.float64))
 
 
 @ti.kernel
 def _take_members(acc: ti.template(), out: ti.types.ndarray(dtype=ti.f64, ndim=1)):
     for j in ti.static(range(len(acc.keys))):
         out[j] = acc.field_dict[acc.keys[j]][None]
-        acc.field_dict[acc.keys[j]][None] = 0.0
-
-
-@ti.kernel
-def _zero_members(acc: ti.template()):
-    for j in ti.static(range(len(acc.keys))):
         acc.field_dict[acc.keys[j]][None] = 0.0
