@@ -14,6 +14,7 @@ arrays page-aligned in a tree of their own, in one process, interleaved (``bench
 docs/benchmarks/README.md, "Array placement"). Which placements are slow was not pinned down;
 page-aligned arrays were fast in every arrangement tried.
 """
+import numpy as np
 import taichi as ti
 
 from ..errors import UserError
@@ -64,6 +65,11 @@ def page_aligned_vectors(n: int, count: int) -> list:
         builder.dense(ti.i, size).place(fields[-1])
     builder.finalize()
     return fields
+
+
+def numpy_real():
+    """The numpy dtype of the running Taichi's default float: the run's precision (f64 or f32)."""
+    return np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
 
 
 def check_tree_room():

@@ -17,6 +17,7 @@ import numpy as np
 import taichi as ti
 
 from . import slabs
+from .allocation import numpy_real
 from .bodies import BodyInfo
 from .lattice import SPRING_KINDS
 from .scalar_fields import assign
@@ -79,7 +80,7 @@ class Model:
         self.x0_np = np.asarray(x0, dtype=np.float64)
         self.v0_np = np.asarray(v0, dtype=np.float64)
         self.mass_np = np.asarray(mass, dtype=np.float64)
-        self.real = np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
+        self.real = numpy_real()
         self._lattice = False  # springs in lattice order (ModelBuilder): slab ranges by arithmetic
 
         n, m = self.n_particles, max(self.n_springs, 1)

@@ -4,7 +4,7 @@
 import numpy as np
 import taichi as ti
 
-from .allocation import page_aligned_vectors
+from .allocation import numpy_real, page_aligned_vectors
 
 
 @ti.data_oriented
@@ -13,6 +13,7 @@ class State:
 
     def __init__(self, n_particles: int):
         self.n_particles = n_particles
+        self.real = numpy_real()  # the numpy dtype of x and v
         self.x, self.v = page_aligned_vectors(n_particles, 2)
 
     def set(self, x: np.ndarray, v: np.ndarray):
@@ -20,10 +21,9 @@ class State:
 
         One kernel (no host copy when the arrays are already in the run's precision).
         """
-        real = np.float64 if ti.lang.impl.get_runtime().default_fp == ti.f64 else np.float32
         arrays = []
         for name, a in (("x", x), ("v", v)):
-            a = np.ascontiguousarray(a, dtype=real)
+            a = np.ascontiguousarray(a, dtype=self.real)
             if a.shape != (self.n_particles, 3):
                 raise ValueError(f"State.set: {name} has shape {a.shape}, expected ({self.n_particles}, 3)")
             arrays.append(a)
@@ -40,7 +40,7 @@ class State:
 
         One kernel per state (``to_numpy`` would compile one per field, about 20 ms each).
         """
-        x = np.empty((self.n_particles, 3), dtype=np.float64 if self.x.dtype == ti.f64 else np.float32)
+        x = np.empty((self.n_particles, 3), dtype=self.real)
         v = np.empty_like(x)
         self._get(x, v)
         return x, v
