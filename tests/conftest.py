@@ -44,17 +44,17 @@ def fresh_taichi(request, taichi_runtime):
     the next must be marked ``pytestmark = pytest.mark.taichi_shared``: a field used after its
     runtime was started again is a segmentation fault, not an error.
     """
-    if request.node.get_closest_marker("taichi_shared") is None:
-        from taichi.lang import impl
+    if request.node.get_closest_marker("taichi_shared") is not None:
+        return
+    from taichi.lang import impl
 
-        rt = impl.get_runtime()
-        if rt.materialized or rt.global_vars:
-            from taichi_soft import runtime
+    rt = impl.get_runtime()
+    if rt.materialized or rt.global_vars:
+        from taichi_soft import runtime
 
-            started = taichi_runtime
-            runtime.init(started["arch"], started["precision"], fast_math=started["fast_math"],
-                         optimize=started["optimize"])
-    yield
+        started = taichi_runtime
+        runtime.init(started["arch"], started["precision"], fast_math=started["fast_math"],
+                     optimize=started["optimize"])
 
 
 @pytest.fixture
