@@ -358,9 +358,12 @@ class ImplicitIntegrator(Integrator):
         self.scheme.reset()  # BDF2 starts its history again
 
     def residual(self) -> float:
-        """Residual [m/s^2] of the last gradient evaluation (see ``Objective.residual``)."""
-        ob = self.objective
-        return float(np.sqrt(max(float(self.sc.res2[None]), 0.0) / float(ob.total_mass[None]))) / float(ob.h2[None])
+        """Residual [m/s^2] of the last gradient evaluation (``Objective.residual``, in the run's precision)."""
+        return float(self._residual())
+
+    @ti.kernel
+    def _residual(self) -> float:
+        return self.objective.residual()
 
     def residual_history(self) -> list[float]:
         """Residual [m/s^2] at each gradient evaluation of the last step (the first at the start)."""
