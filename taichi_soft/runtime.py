@@ -29,14 +29,26 @@ _current: dict | None = None
 # reference solutions compare errors down to 1e-12 m, where every rounding must be IEEE's.
 FAST_MATH_CLI_DEFAULT = True
 
-# Taichi's own IR passes (``advanced_optimization``) are most of a kernel's compile time. Measured
-# 2026-12-02 on the 2-core VM, default cube, one process, cold cache: implicit_euler compiles in
-# 15.8 s CPU with them and 3.2 s without, fast_mass_spring 18.1 s against 4.3 s, semi-implicit
-# Euler 0.9 s either way; the compiled kernels ran 2.5 s of the drop within -10 % to +20 % of the
-# optimised ones. Runs are optimised by default (the speed studies measure what users get);
-# ``TAICHI_SOFT_OPTIMIZE=0`` turns the passes off for work dominated by compiling: the test suite
-# (tests/conftest.py sets it, child processes inherit it) and short experiments.
+# Taichi's own IR passes (``advanced_optimization``) are most of a kernel's compile time. Runs are
+# optimised by default (the speed studies measure what users get); ``TAICHI_SOFT_OPTIMIZE=0`` turns
+# the passes off for work dominated by compiling: the test suite (tests/conftest.py sets it, child
+# processes inherit it) and short experiments. Measured 2026-12-06 on the 2-core Intel Xeon VM,
+# default cube on the plane, cold cache, with the passes (less the CFG one, below) / without them:
+# implicit_euler compiles in 3.4 / 1.9 s of CPU and steps 1.25x slower without, fast_mass_spring
+# 9.3 / 3.9 s and 1.29x slower (75 steps at 1/30 s, one run each on a busy machine).
 OPTIMIZE_ENV = "TAICHI_SOFT_OPTIMIZE"
+
+# Of those passes, the control-flow-graph one (store-to-load forwarding and dead-store elimination
+# over the whole kernel) grows faster than the kernel (Taichi issue #1785), and the implicit solvers'
+# one-launch step is one large kernel. Measured 2026-12-06 on the 2-core Intel Xeon VM, default cube
+# on the plane, f64, cold cache, CPU seconds to compile (first step) with / without it:
+# implicit_euler 18.7 / 3.2, fast_mass_spring 64.7 / 11.4, rk4 0.88 / 0.57, semi-implicit Euler
+# 0.42 / 0.30; steps/s without it against with it (3 rounds, interleaved processes, medians),
+# implicit_euler 1.06x, fast_mass_spring 1.16x, rk4 n = 10 / 40 1.15x / 0.93x, semi-implicit Euler
+# f64 n = 10 / 40 0.99x / 0.94x, f32 with fast math 0.99x / 1.51x (rounds on this VM differ by up
+# to 30 %): no slowdown beyond its noise; and bit-identical states and solver statistics
+# (scripts/same_answers.py --stats, with TAICHI_SOFT_OPTIMIZE=1). So optimised runs skip that pass.
+SKIP_CFG_PASS = True
 
 # Taichi's offline kernel cache (~/.cache/taichi) evicts its least recently used quarter whenever it
 # passes 100 MiB, checked as each process exits. The kernels of every integrator, terrain and
@@ -77,6 +89,8 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
     compile_speed.install()
     options = dict(fast_math=bool(fast_math), offline_cache=True, advanced_optimization=optimize,
                    offline_cache_max_size_of_files=KERNEL_CACHE_BYTES)
+    if optimize and SKIP_CFG_PASS:
+        options["cfg_optimization"] = False
     options.update(kwargs)
     # ti.init prints a "Starting on arch" banner to stdout; keep stdout for our own output.
     with contextlib.redirect_stdout(io.StringIO()):

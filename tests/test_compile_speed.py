@@ -65,3 +65,21 @@ def test_an_unplaced_field_is_still_said_with_where_it_was_declared():
     text = str(err.value)
     assert "not placed" in text and __file__ in text, text
     assert "in _declare_without_shape" in text and "in test_an_unplaced_field_is_still_said" in text, text
+
+
+def test_optimised_runs_skip_only_the_cfg_pass(taichi_runtime):
+    """runtime.SKIP_CFG_PASS: with optimisation on, every IR pass but the control-flow-graph one
+    (its cost grows faster than the kernel); with it off, none."""
+    from taichi_soft import runtime
+
+    assert runtime.SKIP_CFG_PASS
+    try:
+        runtime.init("cpu", "f64", optimize=True)
+        cfg = ti.lang.impl.current_cfg()
+        assert cfg.advanced_optimization and not cfg.cfg_optimization
+        runtime.init("cpu", "f64", optimize=False)
+        assert not ti.lang.impl.current_cfg().advanced_optimization
+    finally:
+        started = taichi_runtime
+        runtime.init(started["arch"], started["precision"], fast_math=started["fast_math"],
+                     optimize=started["optimize"])
