@@ -27,7 +27,10 @@ NO_VULKAN = {"VK_ICD_FILENAMES": "/nonexistent"}  # the Vulkan loader then finds
 @functools.lru_cache(maxsize=1)
 def vulkan_probe() -> str | None:
     """None if a hidden GGUI window opens here, else why not (one line)."""
-    code = "import taichi as ti; ti.init(arch=ti.cpu); ti.ui.Window('probe', (16, 16), show_window=False)"
+    # Through runtime.init, not a bare ti.init: Taichi's default cache limit (100 MiB) evicts a
+    # quarter of ~/.cache/taichi when any process with it exits (runtime.KERNEL_CACHE_BYTES).
+    code = (f"import sys; sys.path.insert(0, {str(ROOT)!r}); from taichi_soft import runtime; runtime.init('cpu'); "
+            "import taichi as ti; ti.ui.Window('probe', (16, 16), show_window=False)")
     try:
         p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT / "tests")
     except subprocess.TimeoutExpired:
