@@ -47,8 +47,9 @@ OPTIMIZE_ENV = "TAICHI_SOFT_OPTIMIZE"
 # implicit_euler 1.06x, fast_mass_spring 1.16x, rk4 n = 10 / 40 1.15x / 0.93x, semi-implicit Euler
 # f64 n = 10 / 40 0.99x / 0.94x, f32 with fast math n = 10 0.99x (rounds on this VM differ by up
 # to 30 %); at one thread beside one other busy process, f32, fast math, n = 40, no terrain, 4 rounds:
-# 1.02x. No slowdown beyond the noise; and bit-identical states and solver statistics
-# (scripts/same_answers.py --stats, with TAICHI_SOFT_OPTIMIZE=1). So optimised runs skip that pass.
+# 1.02x. No slowdown beyond the noise; and bit-identical states and solver statistics with fast
+# math off (scripts/same_answers.py --stats, TAICHI_SOFT_OPTIMIZE=1; with fast math on they may
+# differ at rounding level, as fast math allows). So optimised runs skip that pass.
 SKIP_CFG_PASS = True
 
 # Taichi's offline kernel cache (~/.cache/taichi) evicts its least recently used quarter whenever it
