@@ -50,11 +50,16 @@ def fresh_taichi(request, taichi_runtime):
 
     rt = impl.get_runtime()
     if rt.materialized or rt.global_vars:
-        from taichi_soft import runtime
+        restart_taichi(taichi_runtime)
 
-        started = taichi_runtime
-        runtime.init(started["arch"], started["precision"], fast_math=started["fast_math"],
-                     optimize=started["optimize"])
+
+def restart_taichi(started: dict):
+    """Start Taichi again as ``started`` (what ``runtime.init`` returned) says: its arch, precision,
+    fast math and optimisation."""
+    from taichi_soft import runtime
+
+    runtime.init(started["arch"], started["precision"], fast_math=started["fast_math"],
+                 optimize=started["optimize"])
 
 
 @pytest.fixture

@@ -3,6 +3,7 @@ still compiles the same kernels and still says where a compile error is."""
 import pytest
 import taichi as ti
 
+from conftest import restart_taichi
 from taichi_soft import compile_speed
 
 
@@ -80,6 +81,4 @@ def test_optimised_runs_skip_only_the_cfg_pass(taichi_runtime):
         runtime.init("cpu", "f64", optimize=False)
         assert not ti.lang.impl.current_cfg().advanced_optimization
     finally:
-        started = taichi_runtime
-        runtime.init(started["arch"], started["precision"], fast_math=started["fast_math"],
-                     optimize=started["optimize"])
+        restart_taichi(taichi_runtime)  # the module's runtime again
