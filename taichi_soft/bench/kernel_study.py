@@ -11,10 +11,14 @@ steps of the same stretched n^3 cube (no terrain) with gather kernels that diffe
 * ``csr``: the same without the branch (``length + TINY``, forces.spring_force);
 * ``rows``: padded rows of constant length (rows.py), the engine's loop since issue 25;
 * ``rows_lookup``: the same, k and kd looked up through the spring group per slot;
+* ``rows_table``: the same rows with 8 bytes a slot instead of 16: the other end and a kind, which
+  indexes a small table of (rest, k, kd), one per distinct (group, rest length) of the slots;
 * ``lookup_fields``: the same, with what the engine reads at run time read as it does: dt a kernel
   argument, gravity from its field, 1/m per particle (``rows_lookup`` bakes all three in);
 * ``lookup_check``: the same plus the engine's divergence check per particle (bits of |v|^2 and
   an atomic on a flag);
+* ``rows_check``: ``rows`` (per-slot copies) with the engine's run-time reads and check: the
+  engine's step written out in one kernel;
 * the engine itself (``engine gather``, ``engine scatter``) through ``Simulation.advance``.
 
 Prints steps per second of wall time and of CPU time (the steadier measure on a shared machine)
@@ -29,7 +33,7 @@ import numpy as np
 
 from .timing import Candidate, time_candidates
 
-VARIANTS = ("yardstick", "csr_branch", "csr", "rows", "rows_lookup", "lookup_fields", "lookup_check")
+VARIANTS = ("yardstick", "csr_branch", "csr", "rows", "rows_lookup", "rows_table", "lookup_fields", "lookup_check", "rows_check")
 
 
 def _kernels(sim):
@@ -52,6 +56,15 @@ def _kernels(sim):
     w = rows.width
     slot_group = rows.group.to_numpy()
     rows.kkd.from_numpy(np.stack([k_np[slot_group], kd_np[slot_group]], axis=1))
+    # slot kinds: each distinct (group, rest) of the slots indexes a small table of (rest, k, kd)
+    slot_rest = rows.rest.to_numpy()
+    pairs = np.stack([slot_group.astype(np.float64), slot_rest.astype(np.float64)], axis=1)
+    uniq, kind_np = np.unique(pairs, axis=0, return_inverse=True)
+    table = ti.Vector.field(4, float, len(uniq))
+    tg = uniq[:, 0].astype(int)
+    table.from_numpy(np.stack([uniq[:, 1], k_np[tg], kd_np[tg], np.zeros(len(uniq))], axis=1).astype(slot_rest.dtype))
+    kind = ti.field(ti.i32, len(kind_np))
+    kind.from_numpy(kind_np.astype(np.int32).ravel())
     dt, inv_m = sim.dt, 1.0 / float(m.mass_np[0])
     limit, flag = ti.field(float, ()), ti.field(ti.i32, ())
     limit[None], flag[None] = 1e12, 1
@@ -69,11 +82,16 @@ def _kernels(sim):
                         j = rows.other[slot]
                         d = xi - xo[j]
                         kkd = ti.Vector.zero(float, 2)
-                        if ti.static(variant != "rows"):
+                        rest = rows.rest[slot]
+                        if ti.static(variant == "rows_table"):
+                            t = table[kind[slot]]
+                            rest = t[0]
+                            kkd = ti.Vector([t[1], t[2]])
+                        elif ti.static(variant not in ("rows", "rows_check")):
                             kkd = ti.Vector([m.group_k[rows.group[slot]], m.group_kd[rows.group[slot]]])
                         else:
                             kkd = rows.kkd[slot]
-                        f += spring_force(d, vi - vo[j], d.norm(), rows.rest[slot], kkd[0], kkd[1])
+                        f += spring_force(d, vi - vo[j], d.norm(), rest, kkd[0], kkd[1])
                 else:
                     for a in range(m.adj_offset[i], m.adj_offset[i + 1]):
                         j = m.adj_other[a]
@@ -88,12 +106,12 @@ def _kernels(sim):
                                 f -= (k_e[a] * (length - m.adj_rest[a]) + kd_e[a] * (vi - vo[j]).dot(lh)) * lh
                         else:
                             f += spring_force(d, vi - vo[j], length, m.adj_rest[a], k_e[a], kd_e[a])
-                if ti.static(variant.startswith("lookup")):
+                if ti.static(variant.startswith("lookup") or variant == "rows_check"):
                     a = m.gravity[None] * ti.cast(m.inv_mass[i] > 0, float) + f * m.inv_mass[i]
                     v_new = vi + h * a
                     vn[i] = v_new
                     xn[i] = xi + h * v_new
-                    if ti.static(variant == "lookup_check"):
+                    if ti.static(variant.endswith("_check")):
                         speed2 = v_new.dot(v_new)
                         if _not_finite(speed2) or speed2 > limit[None]:
                             ti.atomic_min(flag[None], 0)
