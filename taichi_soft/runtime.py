@@ -9,7 +9,7 @@ import os
 # runs before any module of the package imports Taichi.
 import taichi as ti
 
-from . import compile_speed
+from . import compile_speed, cpu_threads
 from .errors import UserError
 
 ARCHS = ("cpu", "cuda", "vulkan", "metal", "auto")
@@ -28,6 +28,12 @@ _current: dict | None = None
 # stability studies) get it off unless they ask: convergence-order fits and the tiny-step
 # reference solutions compare errors down to 1e-12 m, where every rounding must be IEEE's.
 FAST_MATH_CLI_DEFAULT = True
+
+# The command line's processes pin each worker of Taichi's CPU thread pool to its own core
+# (cpu_threads.py: unpinned, Linux starts both workers of a launch on the launching core, and the
+# 2-core VM ran two-thread steps at n = 40 barely faster than one thread). Library callers (the
+# tests) leave them free unless they ask: finding the workers takes a 0.1-s loop at every start.
+PIN_THREADS_CLI_DEFAULT = True
 
 # Taichi's own IR passes (``advanced_optimization``) are most of a kernel's compile time. Runs are
 # optimised by default (the speed studies measure what users get); ``TAICHI_SOFT_OPTIMIZE=0`` turns
@@ -73,11 +79,13 @@ def optimize_default() -> bool:
 
 
 def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, optimize: bool | None = None,
-         **kwargs) -> dict:
+         pin_threads: bool = False, **kwargs) -> dict:
     """Initialise Taichi on ``arch`` with default float ``precision``; returns what was started.
 
     ``fast_math``: let the compiler use fast floating-point arithmetic (see FAST_MATH_CLI_DEFAULT).
     ``optimize``: run Taichi's IR optimisation passes (None: ``optimize_default()``, see OPTIMIZE_ENV).
+    ``pin_threads``: on the CPU, pin each worker of Taichi's thread pool to its own core
+    (``cpu_threads.pin_pool_workers``; see PIN_THREADS_CLI_DEFAULT); "pinned_workers" in the result.
     Raises ``UserError`` if the backend is unknown or not available here (Taichi would silently
     fall back to the CPU), or if the backend cannot do f64.
     """
@@ -108,7 +116,9 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
     if precision == "f64" and name in ("vulkan", "metal"):
         ti.reset()
         raise UserError(f"backend {name!r} has no f64 support here; use --precision f32")
-    _current = {"arch": name, "precision": precision, "fast_math": bool(fast_math), "optimize": optimize}
+    pinned = cpu_threads.pin_pool_workers() if pin_threads and name == "cpu" else 0
+    _current = {"arch": name, "precision": precision, "fast_math": bool(fast_math), "optimize": optimize,
+                "pinned_workers": pinned}
     return dict(_current)
 
 

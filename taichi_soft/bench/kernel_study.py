@@ -132,10 +132,12 @@ def main(argv=None) -> int:
     p.add_argument("--no-fast-math", action="store_true")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--rounds", type=int, default=7)
+    p.add_argument("--free-threads", action="store_true", help="leave Taichi's pool workers unpinned (cpu_threads.py)")
     a = p.parse_args(argv)
     from .. import runtime
 
-    runtime.init("cpu", a.precision, fast_math=not a.no_fast_math, cpu_max_num_threads=a.threads)
+    runtime.init("cpu", a.precision, fast_math=not a.no_fast_math, cpu_max_num_threads=a.threads,
+                 pin_threads=not a.free_threads)
     import taichi as ti
 
     from ..sim.scene import load_scene

@@ -37,7 +37,8 @@ def speed_config(arch: str, precision: str, quick: bool, profile: bool = False) 
 
     from .. import runtime
 
-    cfg = runtime.init(arch, precision, fast_math=True, kernel_profiler=profile)
+    cfg = runtime.init(arch, precision, fast_math=True, kernel_profiler=profile,
+                       pin_threads=runtime.PIN_THREADS_CLI_DEFAULT)
     if profile:
         rows = [{"n": n, "integrator": name, "tasks": kernel_profile(name, n)}
                 for n in ((4,) if quick else (10, 40))

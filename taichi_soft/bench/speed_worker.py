@@ -27,13 +27,13 @@ class _Stepper:
         from .. import runtime
 
         kind, precision = spec["kind"], spec["precision"]
-        init_kw = {}
+        init_kw = {"pin_threads": runtime.PIN_THREADS_CLI_DEFAULT}  # what the command line's runs get
         if spec.get("threads"):
             init_kw["cpu_max_num_threads"] = int(spec["threads"])
         if kind in ("engine", "run", "yardstick"):
             runtime.init(spec["arch"], precision, fast_math=spec["fast_math"], **init_kw)
         else:  # the model (numpy arrays, spring parameters) comes from the engine's builder
-            runtime.init("cpu", precision)
+            runtime.init("cpu", precision)  # numpy and Warp: Taichi only builds their model
         # "run": the user's path, Simulation.run on the plane terrain (as `run` without a video)
         sets = REFERENCE_SCENE[1:] if kind == "run" else REFERENCE_SCENE
         scene = load_scene("plane", [f"body.0.n={spec['n']}", *sets])

@@ -224,7 +224,10 @@ def start_taichi(args):
 
 def runtime_args(args) -> dict:
     """``runtime.init``'s arguments from the command line (the render process starts its own)."""
-    return {"arch": args.arch, "precision": args.precision, "fast_math": args.fast_math}
+    from .. import runtime
+
+    return {"arch": args.arch, "precision": args.precision, "fast_math": args.fast_math,
+            "pin_threads": runtime.PIN_THREADS_CLI_DEFAULT}
 
 
 def write_output(label: str, path: Path, write, written: list) -> list[str]:

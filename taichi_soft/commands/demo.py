@@ -65,7 +65,8 @@ def cmd_demo_replay(args) -> int:
     data = load_session(args.replay)  # a bad file fails here, before Taichi starts
     video = check_output_path(args.video, "--video", [".mp4", ".gif"])
     setup = data["setup"]
-    runtime.init(setup.get("arch", "cpu"), setup.get("precision", "f64"), fast_math=setup.get("fast_math", False))
+    runtime.init(setup.get("arch", "cpu"), setup.get("precision", "f64"), fast_math=setup.get("fast_math", False),
+                 pin_threads=runtime.PIN_THREADS_CLI_DEFAULT)
     if video is None:
         video = default_path("replay", Path(str(setup["scene"])).stem, ".mp4")
     result = replay(data, video)

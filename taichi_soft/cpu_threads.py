@@ -1,0 +1,78 @@
+"""One core per worker of Taichi's CPU thread pool (Linux).
+
+Taichi 1.7's CPU backend runs each parallel loop on a pool of worker threads, which the launching
+thread wakes through a condition variable at every launch and which go back to sleep when the loop
+ends. Linux puts a woken thread on the waker's core when it can (wake-affine placement), so the
+workers of each launch start on one core and the second waits until the idle core's balancer takes
+it over: on the 2-core development VM (2026-12-06, Intel Xeon, Taichi 1.7.4) the two 1-ms tasks of
+one parallel loop ran one after the other (``bench.machine_limits.thread_overlap``: 0.0-0.2 over four
+processes) unpinned, and at once (0.9-1.0) with each worker pinned to its own core. A step kernel at
+n = 40 launches every 2.5-5 ms, so it paid that wait at every step (docs/benchmarks/README.md, "Thread
+placement"). Pinning only the pool's workers leaves the launching (Python) thread and Taichi's
+compile threads free to move.
+
+``pin_pool_workers`` finds the workers by what they do: the threads other than the caller that spend
+CPU time on a parallel loop of about 0.1 s (a spin, compiled and launched once per runtime).
+"""
+
+import os
+import sys
+import threading
+
+import taichi as ti
+
+SPIN_TASKS = 4096  # iterations of the finding loop; each about 20 us of sin() on this VM
+SPIN_WORK = 1000  # sin() evaluations per iteration
+
+
+def _thread_cpu_ticks() -> dict[int, int]:
+    """{thread id: user + system CPU time [clock ticks]} of this process's threads (Linux /proc)."""
+    out = {}
+    for name in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{name}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:  # the thread ended meanwhile
+            continue
+        out[int(name)] = int(fields[11]) + int(fields[12])  # utime, stime (fields 14, 15 of stat)
+    return out
+
+
+def _spin_kernel():
+    @ti.kernel
+    def spin(tasks: ti.i32) -> ti.f32:
+        total = ti.cast(0.0, ti.f32)
+        for t in range(tasks):
+            acc = ti.cast(t, ti.f32)
+            for k in range(SPIN_WORK):
+                acc = ti.sin(acc + k)
+            total += acc
+        return total
+
+    return spin
+
+
+def pin_pool_workers() -> int:
+    """Pin each worker of the running CPU runtime's thread pool to its own core, round robin over the
+    cores this process may use; returns how many were pinned (0 where there is nothing to do: not
+    Linux, one core, a pool of one thread, or no worker found)."""
+    if not sys.platform.startswith("linux") or not hasattr(os, "sched_setaffinity"):
+        return 0
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) < 2:
+        return 0
+    spin = _spin_kernel()
+    spin(1)  # compiles (Taichi's compile threads work now, not during the finding loop)
+    before = _thread_cpu_ticks()
+    spin(SPIN_TASKS)
+    after = _thread_cpu_ticks()
+    me = threading.get_native_id()  # the launching thread waits while the pool works
+    workers = sorted(t for t, ticks in after.items() if t != me and ticks > before.get(t, ticks))
+    if len(workers) < 2:
+        return 0
+    for k, tid in enumerate(workers):
+        try:
+            os.sched_setaffinity(tid, {cores[k % len(cores)]})
+        except OSError:  # the thread ended meanwhile, or a policy forbids it: leave it free
+            pass
+    return len(workers)
