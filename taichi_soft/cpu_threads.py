@@ -5,13 +5,19 @@ thread wakes through a condition variable at every launch and which go back to s
 ends. Linux puts a woken thread on the waker's core when it can (wake-affine placement), so the
 workers of each launch start on one core and the second waits until the idle core's balancer takes
 it over: on the 2-core development VM (2026-12-06, Intel Xeon, Taichi 1.7.4) the two 1-ms tasks of
-one parallel loop ran one after the other (``bench.machine_limits.thread_overlap``: 0.0-0.2 over four
-processes) unpinned, and at once (0.9-1.0) with each worker pinned to its own core. A step kernel at
+one parallel loop ran one after the other (``bench.machine_limits.thread_overlap``: -0.02 to 0.19 in
+four processes) unpinned, and at once (0.9-1.0) with each worker pinned to its own core. A step kernel at
 n = 40 launches every 2.5-5 ms, so it paid that wait at every step (docs/benchmarks/README.md, "Thread
 placement"). Pinning only the pool's workers leaves the launching (Python) thread and Taichi's
 compile threads free to move.
 
-``pin_pool_workers`` finds the workers by what they do: the threads other than the caller that spend
+Pinning is not always faster. The implicit solvers' step is one launch of many short loops
+(gradient, CG iterations, line search), and with their pool pinned it ran slower: implicit_euler at
+n = 16 / 20, parallel, f64, 110-117 / 60-65 steps/s pinned against 161-169 / 72-78 free (one process
+per row, two rounds; docs/benchmarks/README.md). So each integrator says which it wants
+(``Integrator.pins_pool_workers``) and ``Simulation.advance`` places the pool for it (``place``).
+
+``find_pool_workers`` finds the workers by what they do: the threads other than the caller that spend
 CPU time on a parallel loop of about 0.1 s (a spin, compiled and launched once per runtime).
 """
 
@@ -23,6 +29,10 @@ import taichi as ti
 
 SPIN_TASKS = 4096  # iterations of the finding loop; each about 20 us of sin() on this VM
 SPIN_WORK = 1000  # sin() evaluations per iteration
+
+# The running runtime's pool: its workers' thread ids (empty: none found, or not asked for), the cores
+# the process may use, and whether the workers are pinned now.
+_pool = {"workers": [], "cores": [], "pinned": False}
 
 
 def _thread_cpu_ticks() -> dict[int, int]:
@@ -52,10 +62,11 @@ def _spin_kernel():
     return spin
 
 
-def pin_pool_workers() -> int:
-    """Pin each worker of the running CPU runtime's thread pool to its own core, round robin over the
-    cores this process may use; returns how many were pinned (0 where there is nothing to do: not
-    Linux, one core, a pool of one thread, or no worker found)."""
+def find_pool_workers() -> int:
+    """Find the workers of the running CPU runtime's thread pool and pin each to its own core, round
+    robin over the cores this process may use; returns how many were found (0 where there is
+    nothing to place: not Linux, one core, a pool of one thread, or no worker found)."""
+    _pool.update(workers=[], cores=[], pinned=False)
     if not sys.platform.startswith("linux") or not hasattr(os, "sched_setaffinity"):
         return 0
     cores = sorted(os.sched_getaffinity(0))
@@ -70,9 +81,20 @@ def pin_pool_workers() -> int:
     workers = sorted(t for t, ticks in after.items() if t != me and ticks > before.get(t, ticks))
     if len(workers) < 2:
         return 0
-    for k, tid in enumerate(workers):
-        try:
-            os.sched_setaffinity(tid, {cores[k % len(cores)]})
-        except OSError:  # the thread ended meanwhile, or a policy forbids it: leave it free
-            pass
+    _pool.update(workers=workers, cores=cores)
+    place(True)
     return len(workers)
+
+
+def place(pinned: bool):
+    """Pin the pool's workers one to a core (``pinned``) or let them run on any core this process
+    may use; nothing to do if ``find_pool_workers`` found none, or they are placed so already."""
+    if not _pool["workers"] or _pool["pinned"] == pinned:
+        return
+    cores = _pool["cores"]
+    for k, tid in enumerate(_pool["workers"]):
+        try:
+            os.sched_setaffinity(tid, {cores[k % len(cores)]} if pinned else set(cores))
+        except OSError:  # the thread ended, or a policy forbids it: leave it as it is
+            pass
+    _pool["pinned"] = pinned

@@ -1,6 +1,6 @@
-"""cpu_threads.pin_pool_workers: each worker of Taichi's CPU pool on its own core, nothing else
-pinned. Each case runs in a process of its own (the pinning outlives the runtime's threads' work
-and the pool is made at ti.init)."""
+"""cpu_threads: the workers of Taichi's CPU pool found, pinned one to a core while an explicit method
+steps and left free while an implicit solver does; nothing else pinned. Each case runs in a process
+of its own (the pool is made at ti.init, and the placement outlives a test)."""
 import json
 import os
 import subprocess
@@ -10,42 +10,58 @@ import pytest
 
 from taichi_soft.paths import ROOT
 
-# The pinning and this probe are Linux's (sched_setaffinity, /proc/self/task).
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="thread pinning is Linux only")
+# The placement and this probe are Linux's (sched_setaffinity, /proc/self/task).
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="thread placement is Linux only")
 
 PROBE = """
 import json, os, sys, threading
 from taichi_soft import runtime
-started = runtime.init("cpu", "f32", pin_threads=True, cpu_max_num_threads=int(sys.argv[1]))
+started = runtime.init("cpu", "f64", pin_threads=True, cpu_max_num_threads=int(sys.argv[1]))
 every = set(os.sched_getaffinity(0))
-pinned = {}
-for name in os.listdir("/proc/self/task"):
-    cores = os.sched_getaffinity(int(name))
-    if cores != every:
-        pinned[name] = sorted(cores)
-print(json.dumps({"started": started["pinned_workers"], "pinned": pinned, "cores": len(every),
-                  "main_free": os.sched_getaffinity(threading.get_native_id()) == every}))
+
+def pinned():
+    out = {}
+    for name in os.listdir("/proc/self/task"):
+        cores = os.sched_getaffinity(int(name))
+        if cores != every:
+            out[name] = sorted(cores)
+    return out
+
+seen = {"found": started["pinned_workers"], "cores": len(every), "at_start": pinned(),
+        "main_free": os.sched_getaffinity(threading.get_native_id()) == every}
+if len(sys.argv) > 2:
+    from taichi_soft.sim.scene import load_scene
+    from taichi_soft.sim.simulation import Simulation
+    for name in sys.argv[2:]:
+        Simulation(load_scene("plane", ["body.0.n=3"]), integrator=name).advance(1)
+        seen[name] = pinned()
+print(json.dumps(seen))
 """
 
 
-def _probe(threads: int) -> dict:
-    r = subprocess.run([sys.executable, "-c", PROBE, str(threads)], capture_output=True, text=True, cwd=ROOT,
-                       env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
+def _probe(threads: int, *integrators) -> dict:
+    r = subprocess.run([sys.executable, "-c", PROBE, str(threads), *integrators], capture_output=True, text=True,
+                       cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def test_a_two_thread_pool_gets_one_core_per_worker_and_the_rest_stays_free():
-    out = _probe(2)
+def _one_core_each(pinned: dict) -> bool:
+    return (len(pinned) == 2 and all(len(c) == 1 for c in pinned.values())
+            and len({c[0] for c in pinned.values()}) == 2)
+
+
+def test_the_two_workers_are_pinned_for_explicit_steps_and_freed_for_implicit_ones():
+    out = _probe(2, "implicit_euler", "semi_implicit_euler")
     assert out["main_free"]
-    if out["cores"] < 2:  # nothing to spread over: nothing pinned
-        assert out["started"] == 0 and out["pinned"] == {}
+    if out["cores"] < 2:  # nothing to spread over: nothing found, nothing pinned
+        assert out["found"] == 0 and out["at_start"] == {} and out["implicit_euler"] == {}
         return
-    assert out["started"] == 2 and len(out["pinned"]) == 2  # the two workers, nothing else
-    assert all(len(c) == 1 for c in out["pinned"].values())
-    assert len({c[0] for c in out["pinned"].values()}) == 2  # on different cores
+    assert out["found"] == 2 and _one_core_each(out["at_start"])  # the two workers, nothing else
+    assert out["implicit_euler"] == {}  # its many short loops ran slower pinned
+    assert _one_core_each(out["semi_implicit_euler"]) and out["semi_implicit_euler"] == out["at_start"]
 
 
 def test_a_one_thread_pool_is_left_alone():
     out = _probe(1)
-    assert out["started"] == 0 and out["pinned"] == {}
+    assert out["found"] == 0 and out["at_start"] == {}

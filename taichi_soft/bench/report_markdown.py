@@ -141,8 +141,9 @@ def speed_markdown(result: dict) -> str:
         if res.get("thread_overlap"):
             out += ["Thread overlap on this machine: a parallel loop of two equal tasks, each alone taking the time "
                     "in the first column; overlap 1 = both threads ran them at once, 0 = one after the other (the "
-                    "second thread joined too late). The step kernels' 2-thread scaling cannot beat this for loops "
-                    "of their length.", "", "| one task [ms] | two tasks [ms] | overlap |", "|---:|---:|---:|"]
+                    "second thread joined too late), with the pool's workers pinned one to a core (cpu_threads.py). "
+                    "The step kernels' 2-thread scaling cannot beat this for loops of their length.", "",
+                    "| one task [ms] | two tasks [ms] | overlap |", "|---:|---:|---:|"]
             for o in res["thread_overlap"]:
                 out.append(f"| {o['task_ms']:.2f} | {o['two_tasks_ms']:.2f} | {o['overlap']:.2f} |")
             out.append("")

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import runtime
+from .. import cpu_threads, runtime
 from .allocation import check_tree_room
 from .bodies import BodySpec
 from .builder import ModelBuilder
@@ -166,6 +166,7 @@ class Simulation:
         """Take up to ``n_steps`` steps; returns how many were taken (fewer means diverged)."""
         if self.diverged:
             return 0
+        cpu_threads.place(self.integrator.pins_pool_workers)  # a no-op unless the runtime found its pool
         done = self.integrator.advance(self.state, self.dt, n_steps)
         self.steps += done
         if done < n_steps:

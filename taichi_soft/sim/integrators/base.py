@@ -93,6 +93,9 @@ class Integrator:
     force_evals = 0  # force evaluations per step
     implicit = False
     description = ""
+    # Whether its parallel launches want Taichi's CPU pool workers pinned one to a core (cpu_threads.py:
+    # an explicit step's few long loops ran 1.5-2x faster so; the implicit solvers' many short ones slower).
+    pins_pool_workers = True
     # The class's own fields per particle and spring ({name: footprint.Field}); a subclass's table adds
     # to its bases' (``buffer_table``). The base allocates them all first thing in ``__init__``.
     BUFFERS: ClassVar[dict] = {}

@@ -61,6 +61,7 @@ class ImplicitIntegrator(Integrator):
     """
 
     implicit = True
+    pins_pool_workers = False  # its step's many short loops ran slower pinned (cpu_threads.py)
     order = 1
     force_evals = 0
     # No force-pass buffers and no table of its own: the model's adjacency and its parts' tables.
