@@ -29,6 +29,7 @@ import taichi as ti
 
 SPIN_TASKS = 4096  # iterations of the finding loop; each about 20 us of sin() on this VM
 SPIN_WORK = 1000  # sin() evaluations per iteration
+FIND_TRIES = 10  # finding loops at most, until as many threads as the pool has spent CPU time
 
 # The running runtime's pool: its workers' thread ids (empty: none found, or not asked for), the cores
 # the process may use, and whether the workers are pinned now.
@@ -72,13 +73,21 @@ def find_pool_workers() -> int:
     cores = sorted(os.sched_getaffinity(0))
     if len(cores) < 2:
         return 0
+    size = int(ti.lang.impl.current_cfg().cpu_max_num_threads)  # the pool's threads
+    if size < 2:
+        return 0
     spin = _spin_kernel()
     spin(1)  # compiles (Taichi's compile threads work now, not during the finding loop)
-    before = _thread_cpu_ticks()
-    spin(SPIN_TASKS)
-    after = _thread_cpu_ticks()
     me = threading.get_native_id()  # the launching thread waits while the pool works
-    workers = sorted(t for t, ticks in after.items() if t != me and ticks > before.get(t, ticks))
+    before = _thread_cpu_ticks()
+    for _ in range(FIND_TRIES):  # on a busy machine a worker may get no tick in one loop
+        spin(SPIN_TASKS)
+        after = _thread_cpu_ticks()
+        spent = {t: ticks - before[t] for t, ticks in after.items() if t != me and t in before}
+        busy = sorted((t for t in spent if spent[t] > 0), key=lambda t: -spent[t])
+        if len(busy) >= size:
+            break
+    workers = sorted(busy[:size])
     if len(workers) < 2:
         return 0
     _pool.update(workers=workers, cores=cores)

@@ -53,15 +53,15 @@ def _one_core_each(pinned: dict) -> bool:
 
 def test_the_two_workers_are_pinned_for_explicit_steps_and_freed_for_implicit_ones():
     out = _probe(2, "implicit_euler", "semi_implicit_euler")
-    assert out["main_free"]
+    assert out["main_free"], out
     if out["cores"] < 2:  # nothing to spread over: nothing found, nothing pinned
-        assert out["found"] == 0 and out["at_start"] == {} and out["implicit_euler"] == {}
+        assert out["found"] == 0 and out["at_start"] == {} and out["implicit_euler"] == {}, out
         return
-    assert out["found"] == 2 and _one_core_each(out["at_start"])  # the two workers, nothing else
-    assert out["implicit_euler"] == {}  # its many short loops ran slower pinned
-    assert _one_core_each(out["semi_implicit_euler"]) and out["semi_implicit_euler"] == out["at_start"]
+    assert out["found"] == 2 and _one_core_each(out["at_start"]), out  # the two workers, nothing else
+    assert out["implicit_euler"] == {}, out  # its many short loops ran slower pinned
+    assert _one_core_each(out["semi_implicit_euler"]) and out["semi_implicit_euler"] == out["at_start"], out
 
 
 def test_a_one_thread_pool_is_left_alone():
     out = _probe(1)
-    assert out["found"] == 0 and out["at_start"] == {}
+    assert out["found"] == 0 and out["at_start"] == {}, out
