@@ -29,6 +29,7 @@ everything and exits.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import signal
 import sys
 import time
@@ -70,6 +71,46 @@ def _output_paths(options) -> list[tuple[Path, bool]]:
     paths = [(options.video, False), (options.usd, False), (options.frames, True), (options.mesh_dir, True),
              (options.pc2_dir, True)]
     return [(Path(p), folder) for p, folder in paths if p is not None]
+
+
+def _kill_writers_of(pid: int, outputs):
+    """SIGKILL the processes still writing a temporary of the dead render process ``pid`` beside or
+    inside ``outputs`` ((path, is a folder) pairs), and wait until they are gone. Its ffmpeg runs in
+    a session of its own (outputs.VideoFile) and outlives it: at the end of its input it would
+    finish the MP4 and could write the temporary again after we removed it (a killed render process
+    once left one behind in a suite run)."""
+    from ..outfiles import _TEMP
+
+    folders = {(p if folder else p.parent).resolve() for p, folder in outputs}
+    found = []
+    for entry in Path("/proc").glob("[0-9]*"):
+        try:
+            args = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        for arg in args:
+            path = Path(arg.decode(errors="replace"))
+            m = _TEMP.fullmatch(path.name)
+            if m and int(m["pid"]) == pid and path.parent.resolve() in folders:
+                found.append(int(entry.name))
+                break
+    for other in found:
+        try:
+            os.kill(other, signal.SIGKILL)
+        except OSError:
+            continue
+    deadline = time.monotonic() + STOP_SECONDS
+    while found and time.monotonic() < deadline:
+        found = [p for p in found if Path(f"/proc/{p}").exists() and _state(p) != "Z"]
+        time.sleep(0.01)
+
+
+def _state(pid: int) -> str:
+    """The state letter of process ``pid`` in /proc (Z: a zombie, dead but not yet reaped)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return "Z"
 
 
 class RenderProcess:
@@ -200,6 +241,7 @@ class RenderProcess:
                 pass
             from ..outfiles import remove_stale_temps
 
+            _kill_writers_of(self.proc.pid, _output_paths(self.options))
             for path, folder in _output_paths(self.options):
                 try:
                     remove_stale_temps(path, inside=folder)
