@@ -81,6 +81,12 @@ def probe_writable(directory: Path) -> None:
 _TEMP = re.compile(r"\.(?P<base>.+)\.(?P<pid>\d+)\.(?P<hex>[0-9a-f]{8})(?P<suffix>(\.[^.]*)?)")
 
 
+def temp_owner(name: str) -> int | None:
+    """The id of the process named in a hidden temporary's file ``name``, or None for any other name."""
+    m = _TEMP.fullmatch(name)
+    return int(m["pid"]) if m else None
+
+
 def _running(pid: int) -> bool:
     """Whether a process ``pid`` exists on this machine (one of another user's counts as running)."""
     try:

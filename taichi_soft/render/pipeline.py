@@ -79,7 +79,7 @@ def _kill_writers_of(pid: int, outputs):
     a session of its own (outputs.VideoFile) and outlives it: at the end of its input it would
     finish the MP4 and could write the temporary again after we removed it (a killed render process
     once left one behind in a suite run)."""
-    from ..outfiles import _TEMP
+    from ..outfiles import temp_owner
 
     folders = {(p if folder else p.parent).resolve() for p, folder in outputs}
     found = []
@@ -90,8 +90,7 @@ def _kill_writers_of(pid: int, outputs):
             continue
         for arg in args:
             path = Path(arg.decode(errors="replace"))
-            m = _TEMP.fullmatch(path.name)
-            if m and int(m["pid"]) == pid and path.parent.resolve() in folders:
+            if temp_owner(path.name) == pid and path.parent.resolve() in folders:
                 found.append(int(entry.name))
                 break
     for other in found:
