@@ -17,8 +17,10 @@ n = 16 / 20, parallel, f64, 110-117 / 60-65 steps/s pinned against 161-169 / 72-
 per row, two rounds; docs/benchmarks/README.md). So each integrator says which it wants
 (``Integrator.pins_pool_workers``) and ``Simulation.advance`` places the pool for it (``place``).
 
-``find_pool_workers`` finds the workers by what they do: the threads other than the caller that spend
-CPU time on a parallel loop of about 0.1 s (a spin, compiled and launched once per runtime).
+``want_pinning`` (``runtime.init``) says whether this runtime may pin; the first ``place(True)``
+then finds the workers by what they do (``find_pool_workers``: the threads other than the caller
+that spend CPU time on a parallel loop of about 0.1 s, a spin compiled and launched once per
+runtime). A run whose steps launch serially never asks, and never pays for the finding.
 """
 
 import os
@@ -31,9 +33,14 @@ SPIN_TASKS = 4096  # iterations of the finding loop; each about 20 us of sin() o
 SPIN_WORK = 1000  # sin() evaluations per iteration
 FIND_TRIES = 10  # finding loops at most, until as many threads as the pool has spent CPU time
 
-# The running runtime's pool: its workers' thread ids (empty: none found, or not asked for), the cores
-# the process may use, and whether the workers are pinned now.
-_pool = {"workers": [], "cores": [], "pinned": False}
+# The running runtime's pool: whether it may be pinned and has been searched for, its workers' thread
+# ids (empty: none found, or not searched), the cores the process may use, whether they are pinned now.
+_pool = {"wanted": False, "searched": False, "workers": [], "cores": [], "pinned": False}
+
+
+def want_pinning(wanted: bool):
+    """A new runtime started: forget the last one's pool; ``wanted``: ``place(True)`` may pin this one's."""
+    _pool.update(wanted=bool(wanted), searched=False, workers=[], cores=[], pinned=False)
 
 
 def _thread_cpu_ticks() -> dict[int, int]:
@@ -64,10 +71,10 @@ def _spin_kernel():
 
 
 def find_pool_workers() -> int:
-    """Find the workers of the running CPU runtime's thread pool and pin each to its own core, round
-    robin over the cores this process may use; returns how many were found (0 where there is
-    nothing to place: not Linux, one core, a pool of one thread, or no worker found)."""
-    _pool.update(workers=[], cores=[], pinned=False)
+    """Find the workers of the running CPU runtime's thread pool (``place`` pins them); returns how
+    many were found (0 where there is nothing to place: not Linux, one core, a pool of one thread,
+    or no worker found)."""
+    _pool.update(searched=True, workers=[], cores=[], pinned=False)
     if not sys.platform.startswith("linux") or not hasattr(os, "sched_setaffinity"):
         return 0
     cores = sorted(os.sched_getaffinity(0))
@@ -91,15 +98,18 @@ def find_pool_workers() -> int:
     if len(workers) < 2:
         return 0
     _pool.update(workers=workers, cores=cores)
-    place(True)
     return len(workers)
 
 
-def place(pinned: bool):
-    """Pin the pool's workers one to a core (``pinned``) or let them run on any core this process
-    may use; nothing to do if ``find_pool_workers`` found none, or they are placed so already."""
+def place(pinned: bool) -> int:
+    """Pin the pool's workers one to a core, round robin over the cores this process may use
+    (``pinned``), or let them run on any of those cores; the first pinning of a runtime that wants
+    it finds them. Nothing to do where none were found, or they are placed so already. Returns how
+    many workers are pinned now."""
+    if pinned and _pool["wanted"] and not _pool["searched"]:
+        find_pool_workers()
     if not _pool["workers"] or _pool["pinned"] == pinned:
-        return
+        return len(_pool["workers"]) if _pool["pinned"] else 0
     cores = _pool["cores"]
     for k, tid in enumerate(_pool["workers"]):
         try:
@@ -107,3 +117,4 @@ def place(pinned: bool):
         except OSError:  # the thread ended, or a policy forbids it: leave it as it is
             pass
     _pool["pinned"] = pinned
+    return len(_pool["workers"]) if pinned else 0

@@ -32,7 +32,8 @@ FAST_MATH_CLI_DEFAULT = True
 # The command line's processes pin each worker of Taichi's CPU thread pool to its own core while an
 # explicit method steps (cpu_threads.py: unpinned, the 2-core VM ran two-thread explicit steps at
 # n = 40 barely faster than one thread; the implicit solvers ran slower pinned). Library callers (the
-# tests) leave them free unless they ask: finding the workers takes a 0.1-s loop at every start.
+# tests) leave them free unless they ask: finding the workers takes a 0.1-s loop, once per process
+# that launches parallel explicit steps.
 PIN_THREADS_CLI_DEFAULT = True
 
 # Taichi's own IR passes (``advanced_optimization``) are most of a kernel's compile time. Runs are
@@ -84,9 +85,8 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
 
     ``fast_math``: let the compiler use fast floating-point arithmetic (see FAST_MATH_CLI_DEFAULT).
     ``optimize``: run Taichi's IR optimisation passes (None: ``optimize_default()``, see OPTIMIZE_ENV).
-    ``pin_threads``: on the CPU, find the workers of Taichi's thread pool and pin each to its own
-    core where the integrator stepping wants it (``cpu_threads``; see PIN_THREADS_CLI_DEFAULT);
-    "pinned_workers" in the result: how many were found.
+    ``pin_threads``: on the CPU, pin each worker of Taichi's thread pool to its own core while an
+    integrator that wants it launches parallel steps (``cpu_threads``; see PIN_THREADS_CLI_DEFAULT).
     Raises ``UserError`` if the backend is unknown or not available here (Taichi would silently
     fall back to the CPU), or if the backend cannot do f64.
     """
@@ -117,9 +117,8 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
     if precision == "f64" and name in ("vulkan", "metal"):
         ti.reset()
         raise UserError(f"backend {name!r} has no f64 support here; use --precision f32")
-    pinned = cpu_threads.find_pool_workers() if pin_threads and name == "cpu" else 0
-    _current = {"arch": name, "precision": precision, "fast_math": bool(fast_math), "optimize": optimize,
-                "pinned_workers": pinned}
+    cpu_threads.want_pinning(pin_threads and name == "cpu")
+    _current = {"arch": name, "precision": precision, "fast_math": bool(fast_math), "optimize": optimize}
     return dict(_current)
 
 

@@ -1,5 +1,5 @@
 """cpu_threads: the workers of Taichi's CPU pool found, pinned one to a core while an explicit method
-steps and left free while an implicit solver does; nothing else pinned. Each case runs in a process
+launches parallel steps and left free while an implicit solver does; nothing else pinned. Each case runs in a process
 of its own (the pool is made at ti.init, and the placement outlives a test)."""
 import json
 import os
@@ -16,7 +16,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="th
 PROBE = """
 import json, os, sys, threading
 from taichi_soft import runtime
-started = runtime.init("cpu", "f64", pin_threads=True, cpu_max_num_threads=int(sys.argv[1]))
+runtime.init("cpu", "f64", pin_threads=True, cpu_max_num_threads=int(sys.argv[1]))
 every = set(os.sched_getaffinity(0))
 
 def pinned():
@@ -27,14 +27,15 @@ def pinned():
             out[name] = sorted(cores)
     return out
 
-seen = {"found": started["pinned_workers"], "cores": len(every), "at_start": pinned(),
-        "main_free": os.sched_getaffinity(threading.get_native_id()) == every}
-if len(sys.argv) > 2:
-    from taichi_soft.sim.scene import load_scene
-    from taichi_soft.sim.simulation import Simulation
-    for name in sys.argv[2:]:
-        Simulation(load_scene("plane", ["body.0.n=3"]), integrator=name).advance(1)
-        seen[name] = pinned()
+from taichi_soft.sim.scene import load_scene
+from taichi_soft.sim.simulation import Simulation
+
+seen = {"cores": len(every), "at_start": pinned()}
+for run in sys.argv[2:]:  # integrator:mode
+    name, mode = run.split(":")
+    Simulation(load_scene("plane", ["body.0.n=3"]), integrator=name, options={"mode": mode}).advance(1)
+    seen[run] = pinned()
+seen["main_free"] = os.sched_getaffinity(threading.get_native_id()) == every
 print(json.dumps(seen))
 """
 
@@ -51,17 +52,23 @@ def _one_core_each(pinned: dict) -> bool:
             and len({c[0] for c in pinned.values()}) == 2)
 
 
-def test_the_two_workers_are_pinned_for_explicit_steps_and_freed_for_implicit_ones():
-    out = _probe(2, "implicit_euler", "semi_implicit_euler")
+def test_the_two_workers_are_pinned_for_parallel_explicit_steps_only():
+    """Nothing is pinned at start-up, nor for serial steps (the pool is not used); the first parallel
+    explicit step finds the two workers and pins them, to different cores, nothing else; an implicit
+    solver's parallel steps free them (its many short loops ran slower pinned), an explicit one's
+    pins them again."""
+    out = _probe(2, "semi_implicit_euler:serial", "semi_implicit_euler:parallel", "implicit_euler:parallel",
+                 "rk4:parallel")
     assert out["main_free"], out
-    if out["cores"] < 2:  # nothing to spread over: nothing found, nothing pinned
-        assert out["found"] == 0 and out["at_start"] == {} and out["implicit_euler"] == {}, out
+    assert out["at_start"] == {} and out["semi_implicit_euler:serial"] == {}, out
+    if out["cores"] < 2:  # nothing to spread over: nothing pinned
+        assert all(v == {} for k, v in out.items() if ":" in k), out
         return
-    assert out["found"] == 2 and _one_core_each(out["at_start"]), out  # the two workers, nothing else
-    assert out["implicit_euler"] == {}, out  # its many short loops ran slower pinned
-    assert _one_core_each(out["semi_implicit_euler"]) and out["semi_implicit_euler"] == out["at_start"], out
+    assert _one_core_each(out["semi_implicit_euler:parallel"]), out
+    assert out["implicit_euler:parallel"] == {}, out
+    assert out["rk4:parallel"] == out["semi_implicit_euler:parallel"], out
 
 
 def test_a_one_thread_pool_is_left_alone():
-    out = _probe(1)
-    assert out["found"] == 0 and out["at_start"] == {}, out
+    out = _probe(1, "semi_implicit_euler:parallel")
+    assert out["semi_implicit_euler:parallel"] == {}, out

@@ -166,7 +166,9 @@ class Simulation:
         """Take up to ``n_steps`` steps; returns how many were taken (fewer means diverged)."""
         if self.diverged:
             return 0
-        cpu_threads.place(self.integrator.pins_pool_workers)  # a no-op unless the runtime found its pool
+        # Taichi's CPU pool pinned one worker to a core for the integrators that want it, when they
+        # launch in parallel (cpu_threads.py); a no-op unless the runtime was started to allow it.
+        cpu_threads.place(self.integrator.pins_pool_workers and self.integrator.mode == "parallel")
         done = self.integrator.advance(self.state, self.dt, n_steps)
         self.steps += done
         if done < n_steps:
