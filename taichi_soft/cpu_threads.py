@@ -101,15 +101,14 @@ def find_pool_workers() -> int:
     return len(workers)
 
 
-def place(pinned: bool) -> int:
+def place(pinned: bool):
     """Pin the pool's workers one to a core, round robin over the cores this process may use
     (``pinned``), or let them run on any of those cores; the first pinning of a runtime that wants
-    it finds them. Nothing to do where none were found, or they are placed so already. Returns how
-    many workers are pinned now."""
+    it finds them. Nothing to do where none were found, or they are placed so already."""
     if pinned and _pool["wanted"] and not _pool["searched"]:
         find_pool_workers()
     if not _pool["workers"] or _pool["pinned"] == pinned:
-        return len(_pool["workers"]) if _pool["pinned"] else 0
+        return
     cores = _pool["cores"]
     for k, tid in enumerate(_pool["workers"]):
         try:
@@ -117,4 +116,3 @@ def place(pinned: bool) -> int:
         except OSError:  # the thread ended, or a policy forbids it: leave it as it is
             pass
     _pool["pinned"] = pinned
-    return len(_pool["workers"]) if pinned else 0

@@ -62,10 +62,14 @@ def thread_overlap(task_ms=(0.3, 1.0, 3.0, 10.0), repeats=21) -> list[dict]:
     A loop whose two tasks each spin for ``task_ms`` runs in 1x the time of one task when both
     threads start at once, 2x when the second thread joins only after the first has done both.
     ``overlap`` = 2 - median(two tasks) / median(one task): 1 perfect, 0 none. The thread scaling of
-    the step kernels cannot beat what this allows for loops of their length. With the pool's
-    workers unpinned, Linux started both on the launching core and the second joined late (0.0-0.2
-    at 1 ms on the 2-core development VM); pinned one to a core, 0.9-1.0 (cpu_threads.py).
+    the step kernels cannot beat what this allows for loops of their length. The pool is placed as
+    for an explicit step (``cpu_threads.place(True)``: its workers pinned one to a core where the
+    runtime allows it): unpinned, the second worker joined late (-0.02 to 0.19 at 1 ms on the 2-core
+    development VM), pinned 0.9-1.0 (cpu_threads.py).
     """
+    from .. import cpu_threads
+
+    cpu_threads.place(True)
     spin, arg = _overlap_kernel()
 
     def median_s(tasks, count):

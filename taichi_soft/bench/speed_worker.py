@@ -24,7 +24,7 @@ class _Stepper:
     def __init__(self, spec: dict):
         import numpy as np
 
-        from .. import runtime
+        from .. import cpu_threads, runtime
 
         kind, precision = spec["kind"], spec["precision"]
         init_kw = {"pin_threads": runtime.PIN_THREADS_CLI_DEFAULT}  # what the command line's runs get
@@ -57,6 +57,9 @@ class _Stepper:
             from .references import YardstickStepper
 
             ys = YardstickStepper(model, x0, v0, dt)
+            # An explicit gather step like the engine's: the same placement of the pool (engine
+            # steps get it from Simulation.advance; this kernel does not go through it).
+            cpu_threads.place(True)
             self.reset, self.advance, self.sync = (lambda: ys.set(x0, v0)), ys.step, ti.sync
             self.x = lambda: ys.numpy()[0]
             self.mode, self.evals = "parallel, CSR gather", 2 * self.springs
