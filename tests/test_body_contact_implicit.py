@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from physics_helpers import total_energy
+from taichi_soft.bench.energy import relative_rise
 from taichi_soft.sim.lattice import lattice_points
 
 # Module-level caches hold Taichi objects across tests: one runtime for the module (conftest.py).
@@ -29,6 +30,20 @@ def _sim(make_sim, tmp_path_factory, name, terrain):
     sim = _CACHE[key]
     sim.reset()
     return sim
+
+
+def _above_footprint(low, high):
+    """Which particles of ``high`` lie above the lower cube's footprint (its x-z extent)."""
+    lo, hi = low[:, [0, 2]].min(0), low[:, [0, 2]].max(0)
+    return np.all((high[:, [0, 2]] >= lo) & (high[:, [0, 2]] <= hi), axis=1)
+
+
+def _energy_with_pairs(sim):
+    """The total energy [J] with the pairs' terms of the energy balance (``bench.energy.pair_energy``)."""
+    from taichi_soft.bench.energy import pair_energy
+
+    x, v = sim.state.numpy()
+    return total_energy(sim.model, x, v) + pair_energy(sim)
 
 
 def _place(sim, centers, velocities, gravity):
@@ -57,8 +72,7 @@ def test_cube_dropped_on_a_cube_stays_on_top_and_comes_to_rest(make_sim, tmp_pat
         assert not sim.diverged
         x = sim.state.numpy()[0]
         low, high = x[low_i], x[high_i]
-        lo, hi = low[:, [0, 2]].min(0), low[:, [0, 2]].max(0)
-        above = np.all((high[:, [0, 2]] >= lo) & (high[:, [0, 2]] <= hi), axis=1)
+        above = _above_footprint(low, high)
         worst = max(worst, low[:, 1].max() - high[above, 1].min())
     assert worst < 0.1
     x, v = sim.state.numpy()
@@ -141,24 +155,17 @@ def test_a_fast_cube_onto_a_cube_at_a_large_step_keeps_every_pair(make_sim, tmp_
     total energy (with the pairs' terms, ``pair_energy``) never rises above its running minimum, and
     what that balance takes off as refrozen penalty energy (which could hide a rise) is at most 1e-6
     of it (signed: the first step's start also gives back the stale end energy of the last test)."""
-    from taichi_soft.bench.energy import pair_energy
-
     sim = _sim(make_sim, tmp_path_factory, name, "plane")
     dt = 0.1
     sim.set_dt(dt)
     _place(sim, [[0.0, 0.5, 0.0], [0.1, 2.0, 0.05]], [(0, 0, 0), (0, -10.0, 0)], (0.0, -G, 0.0))
     low_i, high_i = (b.particles for b in sim.model.bodies)
     sim.integrator.stats()
-
-    def energy():
-        x, v = sim.state.numpy()
-        return total_energy(sim.model, x, v) + pair_energy(sim)
-
-    series = [energy()]
+    series = [_energy_with_pairs(sim)]
     for _ in range(20):
         sim.advance(1)
         assert not sim.diverged
-        series.append(energy())
+        series.append(_energy_with_pairs(sim))
         x = sim.state.numpy()[0]
         assert x[high_i, 1].min() > x[low_i, 1].max() - 0.05 * SPACING  # never into the lower cube
     stats = sim.integrator.stats()
@@ -167,7 +174,7 @@ def test_a_fast_cube_onto_a_cube_at_a_large_step_keeps_every_pair(make_sim, tmp_
     assert stats["body_candidate_pairs_most"] <= sim.integrator.pairs.capacity
     assert stats["body_deepest_overlap_m"] < 0.05 * SPACING
     e = np.asarray(series)
-    assert np.max(e[1:] - np.minimum.accumulate(e)[:-1]) <= 1e-9 * np.abs(e).max()
+    assert relative_rise(e) <= 1e-9
     assert stats["body_pair_energy_refrozen_J"] <= 1e-6 * np.abs(e).max()
     x = sim.state.numpy()[0]
     assert x[high_i, 1].mean() == pytest.approx(x[low_i, 1].mean() + SIZE + SPACING, abs=0.5 * SPACING)
@@ -181,33 +188,24 @@ def test_a_cube_tipping_over_an_edge_keeps_the_energy_account(make_sim, tmp_path
     total energy with the pairs' terms (``pair_energy``: the penalty each step ends with, less what
     was refrozen) never rises above its running minimum, and the upper cube never sinks into the
     lower one."""
-    from taichi_soft.bench.energy import pair_energy
-
     sim = _sim(make_sim, tmp_path_factory, name, "plane")
     sim.set_dt(1 / 30)
     _place(sim, [[0.0, 0.5, 0.0], [0.8, 0.5 + SIZE + 1.05 * SPACING, 0.05]], [(0, 0, 0), (0, 0, 0)], (0.0, -G, 0.0))
     low_i, high_i = (b.particles for b in sim.model.bodies)
     sim.integrator.stats()
-
-    def energy():
-        x, v = sim.state.numpy()
-        return total_energy(sim.model, x, v) + pair_energy(sim)
-
-    series, worst = [energy()], 0.0
+    series, worst = [_energy_with_pairs(sim)], 0.0
     for _ in range(45):
         sim.advance(1)
         assert not sim.diverged
-        series.append(energy())
+        series.append(_energy_with_pairs(sim))
         x = sim.state.numpy()[0]
         low, high = x[low_i], x[high_i]
-        lo, hi = low[:, [0, 2]].min(0), low[:, [0, 2]].max(0)
-        above = np.all((high[:, [0, 2]] >= lo) & (high[:, [0, 2]] <= hi), axis=1)
-        if above.any():
+        above = _above_footprint(low, high)
+        if above.any():  # (the cube tips off the lower one's footprint)
             worst = max(worst, low[:, 1].max() - high[above, 1].min())
     stats = sim.integrator.stats()
-    e = np.asarray(series)
     assert stats["body_pair_energy_refrozen_J"] > 0 and stats["body_pairs_in_contact_per_step"] > 0
-    assert np.max(e[1:] - np.minimum.accumulate(e)[:-1]) <= 1e-9 * np.abs(e).max()
+    assert relative_rise(series) <= 1e-9
     assert worst < 0.1 * SIZE
 
 
