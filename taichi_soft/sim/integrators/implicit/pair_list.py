@@ -202,7 +202,15 @@ class PairList(BodyGrid):
         # A candidate has |a + t b| < S_ij + 2 RHO for some t (S_ij = ``_span``, at most SPAN R_max),
         # and |b| <= 2 D (D the half-diagonal of the box of all path vectors), so
         # |mid_i - mid_j| = |a + b / 2| < SPAN R_max + 2 RHO + D: the cell.
-        self.cell[None] = SPAN * self.r_max[None] + 2.0 * rho + 0.5 * (self.d_hi[None] - self.d_lo[None]).norm()
+        # The box is read back a component at a time, as the atomics wrote it. Read as whole vectors,
+        # the optimised one-launch step (serial driver, Taichi 1.7.4's IR passes on) got the values
+        # of the step's first list, built along the start paths: a rebuilt list's cells were sized
+        # for the wrong moves and missed pairs in contact (issue 23; not reduced to a small case;
+        # tests/test_body_contact_implicit.py runs it optimised).
+        extent2 = ti.cast(0.0, float)
+        for c in ti.static(range(3)):
+            extent2 += (self.d_hi[None][c] - self.d_lo[None][c]) ** 2
+        self.cell[None] = SPAN * self.r_max[None] + 2.0 * rho + 0.5 * ti.sqrt(extent2)
         self._mark_near(self.mid)
         for h in range(self.table_size):
             self.bucket_count[h] = 0
