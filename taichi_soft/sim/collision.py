@@ -24,7 +24,8 @@ the finer one's particles through its edges. Cost: on the pile (semi-implicit Eu
 2026-12-04, 2-core VM, medians of 3 alternating runs) a whole step took 0.20 ms against 0.126 ms
 with spheres (1.6x); about half of the difference is the larger hash cells (SPAN), the rest the
 face normals. The implicit solvers' contact inside the step (``integrators/implicit/pairs.py``)
-uses the same geometry (``BodyGrid``), with each pair's normal and face frozen for the step.
+uses the same geometry (``BodyGrid``), with each pair's normal and face frozen for the step and an
+edge particle's face normals blended (``_blended_face_normal``) rather than the best one chosen.
 
 After every step (``Integrator._body_contacts``) the pass
 
@@ -172,17 +173,22 @@ class BodyGrid:
                 self.turn[b] = u
 
     @ti.func
+    def _axis_normal(self, i, a: ti.template()):
+        """The outward normal of face a (``face_normals.AXES``) of particle i's body, turned with the
+        body's rotation: column a % 3 of the rotation, positive for a < 3."""
+        turn = self.turn[self.body[i]]
+        return ti.static(1.0 - 2.0 * (a // 3)) * ti.Vector([turn[0, a % 3], turn[1, a % 3], turn[2, a % 3]])
+
+    @ti.func
     def _face_normal(self, i, toward):
         """The outward normal (turned) of particle i's face that best faces direction ``toward``; zero
-        for a particle inside its body. Bit a of the mask is axis a % 3, positive for a < 3
-        (``face_normals.AXES``): column a % 3 of the body's rotation, signed."""
+        for a particle inside its body."""
         best = ti.Vector.zero(float, 3)
         score = ti.cast(-2.0, float)
         mask = self.faces[i]
-        turn = self.turn[self.body[i]]
         for a in ti.static(range(6)):
             if mask & (1 << a):
-                n = ti.static(1.0 - 2.0 * (a // 3)) * ti.Vector([turn[0, a % 3], turn[1, a % 3], turn[2, a % 3]])
+                n = self._axis_normal(i, a)
                 c = n.dot(toward)
                 if c > score:
                     score = c
@@ -190,11 +196,44 @@ class BodyGrid:
         return best
 
     @ti.func
+    def _blended_face_normal(self, i, toward, sharpness: ti.template()):
+        """Particle i's outward face normals (turned), blended with weights exp(sharpness c_a), c_a the
+        cosine between face a's normal and direction ``toward``, and normalised. A particle on one
+        face gets that face's normal. On an edge or a corner the normal turns continuously with
+        ``toward``, close to ``_face_normal``'s choice wherever one face faces clearly better.
+        Zero for a particle inside its body."""
+        u = toward / ti.max(toward.norm(), 1e-30)
+        mask = self.faces[i]
+        top = ti.cast(-2.0, float)
+        for a in ti.static(range(6)):
+            if mask & (1 << a):
+                top = ti.max(top, self._axis_normal(i, a).dot(u))
+        blend = ti.Vector.zero(float, 3)
+        for a in ti.static(range(6)):
+            if mask & (1 << a):
+                n = self._axis_normal(i, a)
+                blend += ti.exp(sharpness * (n.dot(u) - top)) * n
+        out = self._face_normal(i, toward)
+        if blend.norm_sqr() > 0.25:  # (opposite faces of a one-layer mesh body can cancel: keep the best)
+            out = blend.normalized()
+        return out
+
+    @ti.func
     def _pair_normal(self, i, j, d, dist):
         """Contact normal of the pair (i, j) at d = x_i - x_j, dist = |d| (unit, from j toward i) and
         its face spacing s [m]: s > 0 for a pair on a face (module doc), 0 for a pair of spheres."""
-        ni = self._face_normal(i, -d)
-        nj = self._face_normal(j, d)
+        return self._normal_between(i, j, self._face_normal(i, -d), self._face_normal(j, d), d, dist)
+
+    @ti.func
+    def _blended_pair_normal(self, i, j, d, dist, sharpness: ti.template()):
+        """``_pair_normal`` with each particle's face normal blended (``_blended_face_normal``)."""
+        return self._normal_between(i, j, self._blended_face_normal(i, -d, sharpness),
+                                    self._blended_face_normal(j, d, sharpness), d, dist)
+
+    @ti.func
+    def _normal_between(self, i, j, ni, nj, d, dist):
+        """``_pair_normal`` from particle i's face normal ni (facing j) and j's nj (facing i), zero
+        where a particle lies inside its body."""
         fi = ni.norm_sqr() > 0.5
         fj = nj.norm_sqr() > 0.5
         n = ti.Vector([0.0, 1.0, 0.0], dt=float)

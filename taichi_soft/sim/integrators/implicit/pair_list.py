@@ -37,6 +37,15 @@ from ...collision import SPAN, BodyGrid, table_size
 # (docs/benchmarks/ENERGY.md).
 PAIRS_PER_PARTICLE = 12
 RHO = 0.25  # tube radius, in units of the largest contact distance R_max
+# How sharply a pair's normal follows the faces of an edge or corner particle
+# (``BodyGrid._blended_face_normal``). The normal is frozen for a step, and the explicit methods'
+# choice of the best-facing face jumps between steps: on the pile over 3 s at 1/60 s that added 17.9 /
+# 17.1 kJ of penalty energy at steps' starts (implicit_euler / fast_mass_spring). Measured
+# 2026-12-07 on the 2-core Intel Xeon VM, sharpness against that energy and against bench contact's
+# slide at mu = 0.3 (mu g = 2.94 m/s^2): 20: 10.6 / 16.4 kJ; 8: 5.8 / 7.3 kJ; 4: 3.8 / 3.8 kJ,
+# 3.04 / 2.95 m/s^2 (the choice: 3.11 / 3.04); 2: 2.4 / 3.1 kJ, but 3.46 / 3.42 m/s^2 and 0.15 m/s^2
+# at mu = 0, the blend rounding the faces' edges (docs/benchmarks/ENERGY.md).
+FACE_BLEND = 4.0
 
 
 def field_bytes(n_particles: int, real_bytes: int) -> int:
@@ -233,15 +242,16 @@ class PairList(BodyGrid):
 
     @ti.func
     def _geometry(self, xp: ti.template()):
-        """Each candidate's contact normal and face spacing (``BodyGrid._pair_normal``) at x_n = ``xp``,
-        with the bodies' rotations there: frozen for the step, so a pair's contact term is a smooth
-        function of the positions while the solver minimises (a face's choice would jump at edges),
-        and the same for the list rebuilt from the same x_n."""
+        """Each candidate's contact normal and face spacing at x_n = ``xp``, with the bodies' rotations
+        there (``BodyGrid._blended_pair_normal``: an edge particle's faces blended, ``FACE_BLEND``):
+        frozen for the step, so a pair's contact term is a smooth function of the positions while
+        the solver minimises (a face's choice would jump at edges), and the same for the list
+        rebuilt from the same x_n."""
         self._turn_normals(xp)
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             d = xp[i] - xp[j]
-            n, s = self._pair_normal(i, j, d, d.norm())
+            n, s = self._blended_pair_normal(i, j, d, d.norm(), FACE_BLEND)
             self.pnormal[p] = n
             self.pspace[p] = s
 

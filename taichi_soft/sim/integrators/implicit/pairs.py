@@ -5,7 +5,10 @@ scene compiles none of this). A pair (i, j) of particles of different bodies has
 methods' geometry (``collision``): on a face, a normal n from the bodies' face normals and the
 overlap o = R_ij - n . (x_i - x_j) along it, weighted by w = (1 - |t|^2 / s^2)^2 of the tangential
 offset t within the face spacing s, so that faces are flat; otherwise spheres, o = R_ij - |x_i - x_j|,
-w = 1. In contact when o > 0 and w > 0. Per step (docs/implicit.md, "Contact between bodies"):
+w = 1. In contact when o > 0 and w > 0. One difference: an edge or corner particle's face normal is
+its faces' normals blended by how well each faces the other particle (``pair_list.FACE_BLEND``),
+where the explicit methods take the best-facing face. Per step (docs/implicit.md, "Contact between
+bodies"):
 
 * **Pairs** (``begin``, ``follow``; pair_list.py): the candidate pairs are those whose relative
   path along the step's segments comes within S_ij + R_max / 2 of the pair's farthest contact S_ij,
@@ -34,9 +37,10 @@ w = 1. In contact when o > 0 and w > 0. Per step (docs/implicit.md, "Contact bet
   as an impulse split by inverse mass (equal and opposite), relaxed by the contact count of its
   busier particle; the driver scales all bounces of a step to the energy the step lost.
 * **Energy account**: freezing a pair's geometry at x_n changes its penalty energy between one
-  step's end and the next step's start; ``begin`` counts that change (``body_pair_energy_refrozen_J``)
-  and ``energy_terms`` gives both, so an energy balance (bench energy, the tests) can add the
-  penalty and take off what the refreezing changed.
+  step's end and the next step's start; ``begin`` counts that change (``body_pair_energy_refrozen_J``).
+  An energy balance (bench energy, the tests) adds the penalty the last step ended with
+  (``energy_terms``) and takes nothing off: the steps dissipate what refreezing adds (the blended
+  normals cut it 4-5x on the pile; docs/benchmarks/ENERGY.md).
 """
 
 import taichi as ti
@@ -95,8 +99,8 @@ class PairContacts(PairList):
 
     def energy_terms(self) -> tuple[float, float]:
         """(penalty energy at the end of the last step [J], energy counted as refrozen since the
-        last ``stats()`` [J]): what an energy balance adds to the bodies' own energy, and what it
-        takes off for the steps' refrozen geometry (module doc)."""
+        last ``stats()`` [J]): what an energy balance adds to the bodies' own energy, and what the
+        steps' refrozen geometry changed of it (module doc)."""
         return float(self.e_end[None]), float(self.acc.refrozen[None])
 
     def reset(self):
