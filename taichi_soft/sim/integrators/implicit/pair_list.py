@@ -214,8 +214,8 @@ class PairList(BodyGrid):
         # The box is read back a component at a time, as the atomics wrote it. Read as whole vectors,
         # the optimised one-launch step (serial driver, Taichi 1.7.4's IR passes on) got the values
         # of the step's first list, built along the start paths: a rebuilt list's cells were sized
-        # for the wrong moves and missed pairs in contact (issue 23; not reduced to a small case;
-        # tests/test_body_contact_implicit.py runs it optimised).
+        # for the wrong moves and missed pairs in contact (issue 23; reduced in
+        # scripts/taichi_stale_vector_read.py; tests/test_body_contact_implicit.py runs it optimised).
         extent2 = ti.cast(0.0, float)
         for c in ti.static(range(3)):
             extent2 += (self.d_hi[None][c] - self.d_lo[None][c]) ** 2
