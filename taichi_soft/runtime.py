@@ -59,6 +59,22 @@ OPTIMIZE_ENV = "TAICHI_SOFT_OPTIMIZE"
 # differ at rounding level, as fast math allows). So optimised runs skip that pass.
 SKIP_CFG_PASS = True
 
+# Taichi's loop-invariant caching of global loads (``cache_loop_invariant_global_vars``) reads stale
+# values where a loop also writes them through another access: upstream issues #8576 and #8578, open
+# for 1.7.4. It hit us in the implicit solvers' one-launch step: a whole-vector read after atomics on
+# the components returned the step's first values, so a rebuilt pair list was sized for the wrong
+# moves and missed pairs in contact (scripts/taichi_stale_vector_read.py; issue 23). With the pass
+# off that script reads right. Measured 2026-12-07 on the 2-core Intel Xeon VM, steps/s with the pass
+# on / off, two rounds of one process per run, alternating: semi-implicit Euler f32 n = 10 serial
+# 10068 / 9981 and 9860 / 10363, n = 40 parallel 258 / 258 and 243 / 274; RK4 n = 10 2630 / 2569
+# and 2515 / 2474; implicit_euler default cube 192 / 197 and 183 / 176; fast_mass_spring pile 125 /
+# 124 and 122 / 120: no difference beyond the noise. Off on every backend (on a GPU not measured).
+CACHE_LOOP_INVARIANTS = False
+# Taichi's offline cache does not key kernels by that option: a kernel cached with the pass on was
+# loaded with it off and read stale all the same (measured with the script above, 2026-12-07). So the
+# kernels compiled with it off live in a cache directory of their own, beside Taichi's default one.
+NO_LOOP_INVARIANT_CACHE_DIR = "ticache-no-loop-invariants"
+
 # Taichi's offline kernel cache (~/.cache/taichi) evicts its least recently used quarter whenever it
 # passes 100 MiB, checked as each process exits. The kernels of every integrator, terrain and
 # precision take more than that (the test suite leaves 115 MiB), so at the default every process
@@ -105,6 +121,10 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
                    offline_cache_max_size_of_files=KERNEL_CACHE_BYTES)
     if optimize and SKIP_CFG_PASS:
         options["cfg_optimization"] = False
+    options["cache_loop_invariant_global_vars"] = CACHE_LOOP_INVARIANTS
+    if not CACHE_LOOP_INVARIANTS:
+        default_dir = ti.lang.impl.default_cfg().offline_cache_file_path
+        options["offline_cache_file_path"] = os.path.join(os.path.dirname(default_dir), NO_LOOP_INVARIANT_CACHE_DIR)
     options.update(kwargs)
     # ti.init prints a "Starting on arch" banner to stdout; keep stdout for our own output.
     with contextlib.redirect_stdout(io.StringIO()):

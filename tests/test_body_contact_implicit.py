@@ -331,3 +331,17 @@ def test_an_optimised_serial_step_rebuilds_its_pair_list_for_the_whole_search_di
     for name, row in json.loads(r.stdout.strip().splitlines()[-1]).items():
         assert row["rebuilt"] > 0, name  # the case exercises the rebuild
         assert row["cell_error"] < 1e-9 and row["missing"] == 0, (name, row)
+
+
+def test_the_runtime_avoids_taichis_stale_read_after_component_atomics():
+    """scripts/taichi_stale_vector_read.py, the fault behind the missing pairs reduced to one kernel:
+    Taichi optimising as it does by default reads stale values (exit 1; this shows the probe catches
+    the fault), and Taichi started as the project starts it reads right (exit 0:
+    ``runtime.CACHE_LOOP_INVARIANTS`` off)."""
+    from taichi_soft.paths import ROOT
+
+    script = [sys.executable, str(ROOT / "scripts" / "taichi_stale_vector_read.py")]
+    raw = subprocess.run(script, capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert raw.returncode == 1 and "advanced_optimization=True: widths [4.0, 4.0, 4.0, 4.0]" in raw.stdout, raw.stdout
+    ours = subprocess.run(script + ["--project"], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert ours.returncode == 0, ours.stdout + ours.stderr[-2000:]
