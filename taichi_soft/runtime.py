@@ -72,8 +72,10 @@ SKIP_CFG_PASS = True
 CACHE_LOOP_INVARIANTS = False
 # Taichi's offline cache does not key kernels by that option: a kernel cached with the pass on was
 # loaded with it off and read stale all the same (measured with the script above, 2026-12-07). So the
-# kernels compiled with it off live in a cache directory of their own, beside Taichi's default one.
-NO_LOOP_INVARIANT_CACHE_DIR = "ticache-no-loop-invariants"
+# kernels compiled with it off live in a cache directory of their own, beside Taichi's (the user's
+# TI_OFFLINE_CACHE_FILE_PATH, else Taichi's default, taken before any ti.init changes it).
+NO_LOOP_INVARIANT_SUFFIX = "-no-loop-invariants"
+_TAICHI_CACHE_DIR = os.environ.get("TI_OFFLINE_CACHE_FILE_PATH") or ti.lang.impl.default_cfg().offline_cache_file_path
 
 # Taichi's offline kernel cache (~/.cache/taichi) evicts its least recently used quarter whenever it
 # passes 100 MiB, checked as each process exits. The kernels of every integrator, terrain and
@@ -122,10 +124,9 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
     if optimize and SKIP_CFG_PASS:
         options["cfg_optimization"] = False
     options["cache_loop_invariant_global_vars"] = CACHE_LOOP_INVARIANTS
-    if not CACHE_LOOP_INVARIANTS:
-        default_dir = ti.lang.impl.default_cfg().offline_cache_file_path
-        options["offline_cache_file_path"] = os.path.join(os.path.dirname(default_dir), NO_LOOP_INVARIANT_CACHE_DIR)
     options.update(kwargs)
+    if not options["cache_loop_invariant_global_vars"] and "offline_cache_file_path" not in kwargs:
+        options["offline_cache_file_path"] = _TAICHI_CACHE_DIR.rstrip(os.sep) + NO_LOOP_INVARIANT_SUFFIX
     # ti.init prints a "Starting on arch" banner to stdout; keep stdout for our own output.
     with contextlib.redirect_stdout(io.StringIO()):
         ti.init(arch=ti_arch, default_fp=ti.f64 if precision == "f64" else ti.f32, **options)

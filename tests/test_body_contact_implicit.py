@@ -157,8 +157,8 @@ def test_a_fast_cube_onto_a_cube_at_a_large_step_keeps_every_pair(make_sim, tmp_
     list of 1536): no candidate pair is dropped; the overlap stays below 5 % of a spacing (the
     penalty, kappa = 1000, stops an approach of v h = 1 m at about 1 mm; the upper cube's weight
     presses about as little); the upper cube never passes into the lower one and ends on top; the
-    total energy (with the pairs' penalty, ``pair_energy``) never rises above its running minimum,
-    and the steps' refrozen geometry adds no penalty energy beyond 1e-6 of it."""
+    total energy (with the pairs' penalty, ``pair_energy``, nothing taken off) never rises above its
+    running minimum."""
     sim = _sim(make_sim, tmp_path_factory, name, "plane")
     dt = 0.1
     sim.set_dt(dt)
@@ -179,7 +179,6 @@ def test_a_fast_cube_onto_a_cube_at_a_large_step_keeps_every_pair(make_sim, tmp_
     assert stats["body_deepest_overlap_m"] < 0.05 * SPACING
     e = np.asarray(series)
     assert relative_rise(e) <= 1e-9
-    assert stats["body_pair_energy_refrozen_J"] <= 1e-6 * np.abs(e).max()
     x = sim.state.numpy()[0]
     assert x[high_i, 1].mean() == pytest.approx(x[low_i, 1].mean() + SIZE + SPACING, abs=0.5 * SPACING)
 
@@ -272,12 +271,14 @@ def test_a_cube_slides_on_a_cube_at_mu_g(name, mu):
 
 
 # Run optimised, in a process of its own: the suite runs Taichi without its IR passes (conftest.py),
-# and the fault this guards against was in the optimised serial step only.
+# and the fault this guards against was in the optimised serial step only. With Taichi's pass at
+# fault on (runtime.CACHE_LOOP_INVARIANTS), so that the test guards pair_list's own reading of the
+# box; test_the_runtime_avoids_... guards the runtime's setting.
 LIST_PROBE = """
 import json, os, sys, tempfile
 import numpy as np
 from taichi_soft import runtime
-runtime.init("cpu", "f64")
+runtime.init("cpu", "f64", cache_loop_invariant_global_vars=True)
 from taichi_soft.sim.collision import SPAN
 from taichi_soft.sim.integrators.implicit.pair_list import RHO
 from taichi_soft.sim.lattice import lattice_points
