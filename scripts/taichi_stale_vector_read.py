@@ -66,21 +66,23 @@ def probe(optimise: bool, project: bool = False) -> list:
     return width.to_numpy().tolist()
 
 
+def _widths(*args: str) -> list:
+    """``probe``'s widths from a fresh process (each Taichi setting needs its own ti.init)."""
+    r = subprocess.run([sys.executable, __file__, "--probe", *args], capture_output=True, text=True, check=True)
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
 def main() -> int:
     if sys.argv[1:2] == ["--probe"]:
         print(json.dumps(probe(sys.argv[2] == "1", project=sys.argv[3:] == ["project"])))
         return 0
     if sys.argv[1:2] == ["--project"]:
-        r = subprocess.run([sys.executable, __file__, "--probe", "1", "project"], capture_output=True, text=True,
-                           check=True)
-        got = json.loads(r.stdout.strip().splitlines()[-1])
+        got = _widths("1", "project")
         print(f"taichi_soft.runtime (optimised): widths {got}, expected {EXPECTED}")
         return 0 if got == EXPECTED else 1
     stale = False
     for optimise in ("1", "0"):
-        r = subprocess.run([sys.executable, __file__, "--probe", optimise], capture_output=True, text=True,
-                           check=True)
-        got = json.loads(r.stdout.strip().splitlines()[-1])
+        got = _widths(optimise)
         print(f"advanced_optimization={optimise == '1'}: widths {got}, expected {EXPECTED}")
         stale |= got != EXPECTED
     return 1 if stale else 0

@@ -20,6 +20,7 @@ IMPLICIT = ["implicit_euler", "fast_mass_spring"]
 G = 9.8
 SIZE, N = 1.0, 4
 SPACING = SIZE / (N - 1)
+TWO_BODIES = "[[body]]\n[[body]]\n[terrain]\nkind = \"plane\"\npoint = [0, 0, 0]\n"  # sized and placed by --set
 _CACHE = {}
 
 
@@ -129,7 +130,7 @@ def test_serial_and_parallel_drivers_take_the_same_decisions(make_sim, tmp_path_
     out = []
     for mode in ("serial", "parallel"):
         path = tmp_path_factory.mktemp("modes") / "two.toml"
-        path.write_text("[[body]]\n[[body]]\n[terrain]\nkind = \"plane\"\npoint = [0, 0, 0]\n")
+        path.write_text(TWO_BODIES)
         sets = [f"solver.mode={mode}"]
         for b, c in enumerate([[0.0, 0.5, 0.0], [0.1, 2.0, 0.05]]):
             sets += [f"body.{b}.n=3", f"body.{b}.size={SIZE}", f"body.{b}.center={c}"]
@@ -220,7 +221,7 @@ def test_a_pair_list_that_overflows_is_said(make_sim, tmp_path_factory, monkeypa
     from taichi_soft.sim.integrators.implicit.health import assess
 
     path = tmp_path_factory.mktemp("scenes") / "two.toml"
-    path.write_text("[[body]]\n[[body]]\n[terrain]\nkind = \"plane\"\npoint = [0, 0, 0]\n")
+    path.write_text(TWO_BODIES)
     sets = []
     for b, c in enumerate([[0.0, 0.5, 0.0], [0.1, 2.0, 0.05]]):
         sets += [f"body.{b}.n=3", f"body.{b}.size={SIZE}", f"body.{b}.center={c}"]
@@ -275,7 +276,7 @@ def test_a_cube_slides_on_a_cube_at_mu_g(name, mu):
 # fault on (runtime.CACHE_LOOP_INVARIANTS), so that the test guards pair_list's own reading of the
 # box; test_the_runtime_avoids_... guards the runtime's setting.
 LIST_PROBE = """
-import json, os, sys, tempfile
+import json, sys
 import numpy as np
 from taichi_soft import runtime
 runtime.init("cpu", "f64", cache_loop_invariant_global_vars=True)
@@ -285,16 +286,13 @@ from taichi_soft.sim.lattice import lattice_points
 from taichi_soft.sim.scene import load_scene
 from taichi_soft.sim.simulation import Simulation
 
-scene = os.path.join(tempfile.mkdtemp(), "two.toml")
-with open(scene, "w") as f:
-    f.write('[[body]]\\n[[body]]\\n[terrain]\\nkind = "plane"\\npoint = [0, 0, 0]\\n')
-out = {}
-for name in sys.argv[1:]:
+scene, centers, out = sys.argv[1], [[0.0, 0.6, 0.0], [0.1, 2.2, 0.05]], {}
+for name in sys.argv[2:]:
     sets = ["solver.mode=serial"]
-    for b, c in enumerate([[0.0, 0.6, 0.0], [0.1, 2.2, 0.05]]):
+    for b, c in enumerate(centers):
         sets += [f"body.{b}.n=3", f"body.{b}.size=1.0", f"body.{b}.center={c}"]
     sim = Simulation(load_scene(scene, sets), name, 0.1)
-    x = np.concatenate([lattice_points(3, 1.0) + c for c in ([0.0, 0.6, 0.0], [0.1, 2.2, 0.05])])
+    x = np.concatenate([lattice_points(3, 1.0) + c for c in centers])
     sim.state.set(x, np.tile([0.0, -10.0, 0.0], (len(x), 1)))
     sim.terrain.reset(sim.state.x)
     pairs = sim.integrator.pairs
@@ -317,7 +315,7 @@ print(json.dumps(out))
 """
 
 
-def test_an_optimised_serial_step_rebuilds_its_pair_list_for_the_whole_search_direction():
+def test_an_optimised_serial_step_rebuilds_its_pair_list_for_the_whole_search_direction(tmp_path):
     """Both cubes at 10 m/s onto the plane at 0.1 s, serial driver, Taichi's IR passes on (as users
     run): where a search direction leaves the start paths' tube, the list is rebuilt with hash cells
     sized for that direction's moves (``pair_list._collect``), and after every step each pair of
@@ -326,7 +324,9 @@ def test_an_optimised_serial_step_rebuilds_its_pair_list_for_the_whole_search_di
     here; on the pile, pairs in contact went missing from the list.)"""
     from taichi_soft.paths import ROOT
 
-    r = subprocess.run([sys.executable, "-c", LIST_PROBE, *IMPLICIT], capture_output=True, text=True, cwd=ROOT,
+    scene = tmp_path / "two.toml"
+    scene.write_text(TWO_BODIES)
+    r = subprocess.run([sys.executable, "-c", LIST_PROBE, str(scene), *IMPLICIT], capture_output=True, text=True, cwd=ROOT,
                        env={**os.environ, "PYTHONPATH": str(ROOT), "TAICHI_SOFT_OPTIMIZE": "1"}, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     for name, row in json.loads(r.stdout.strip().splitlines()[-1]).items():

@@ -213,9 +213,11 @@ class BodyGrid:
             if mask & (1 << a):
                 n = self._axis_normal(i, a)
                 blend += ti.exp(sharpness * (n.dot(u) - top)) * n
-        out = self._face_normal(i, toward)
-        if blend.norm_sqr() > 0.25:  # (opposite faces of a one-layer mesh body can cancel: keep the best)
+        out = ti.Vector.zero(float, 3)
+        if blend.norm_sqr() > 0.25:
             out = blend.normalized()
+        else:  # (opposite faces of a one-layer mesh body can cancel: keep the best; none inside the body)
+            out = self._face_normal(i, toward)
         return out
 
     @ti.func
