@@ -284,6 +284,17 @@ def check_start(sim: Simulation):
         if depth > 0:
             raise UserError(f"body.{b} starts {depth:.3g} m inside the terrain ({sim.terrain.kind}); "
                             f"move it out (body.{b}.center)")
+    x = sim.state.x.to_numpy().astype(np.float64)
+    ends = sim.model.pairs_np
+    if len(ends):
+        cut = sim.terrain.crossed(x[ends[:, 0]], x[ends[:, 1]])
+        for b, body in enumerate(sim.model.bodies):
+            inside = np.zeros(len(x), dtype=bool)
+            inside[body.particles] = True
+            count = int((cut & inside[ends[:, 0]]).sum())
+            if count:
+                raise UserError(f"body.{b} starts cut by the terrain's surface ({sim.terrain.kind}: it passes "
+                                f"through {count} of the body's springs); move it clear (body.{b}.center)")
     x0 = sim.model.x0_np
     bodies = sim.model.bodies
     for b, body in enumerate(bodies):
