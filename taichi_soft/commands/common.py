@@ -217,9 +217,14 @@ def load_scene_from_args(args):
 
 
 def start_taichi(args):
-    from .. import runtime
+    """Start Taichi as the command line asked; kernels' first launches are timed (compile_notice)."""
+    import taichi as ti
 
-    return runtime.init(**runtime_args(args))
+    from .. import compile_notice, runtime
+
+    started = runtime.init(**runtime_args(args))
+    compile_notice.install(ti.lang.impl.current_cfg().offline_cache_file_path)
+    return started
 
 
 def runtime_args(args) -> dict:

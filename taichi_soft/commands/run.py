@@ -5,6 +5,7 @@ import json
 import sys
 from pathlib import Path
 
+from .. import compile_notice
 from ..errors import OutputError, raise_if_interrupted
 from ..sim.memory import check_fits
 from ..outfiles import finite_or_none
@@ -59,6 +60,7 @@ def cmd_run(args) -> int:
         if render_process is not None:
             render_process.abort()
         raise
+    compile_notice.watch()
     for line in body_lines(sim.model):
         print(line)
     duration = scene.sim["duration"]
@@ -132,6 +134,7 @@ def cmd_run(args) -> int:
               f"simulated in {result.wall_seconds:.2f} s wall ({summary['steps_per_second']:.0f} steps/s); "
               f"final centre of mass ({com}), kinetic energy {f['kinetic_energy']:.3g} J")
     print_outputs(written)
+    compile_notice.say_summary()
     for line in failures:
         print(f"error: {line}", file=sys.stderr)
     for line in summary["solver_warnings"]:
