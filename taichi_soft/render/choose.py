@@ -13,6 +13,18 @@ from __future__ import annotations
 from ..errors import UserError
 
 RENDERERS = ("auto", "ggui", "taichi")
+# The Taichi rasterizer's look (renderer.TaichiRenderer): low = what GGUI draws, medium = + the
+# key light's shadows, high = + the bodies' edges with 2 x 2 samples a pixel. The default is
+# chosen by measurement (docs/rendering.md, "Shadows and anti-aliasing").
+QUALITIES = ("low", "medium", "high")
+DEFAULT_QUALITY = "high"
+
+
+def check_quality(quality: str) -> str:
+    """``quality`` if it is one of ``QUALITIES``, else ``UserError`` naming them."""
+    if quality not in QUALITIES:
+        raise UserError(f"unknown quality {quality!r}; choose one of: {', '.join(QUALITIES)}")
+    return quality
 
 
 def choose_renderer(kind: str = "auto", needs_ggui: bool = False) -> str:
@@ -30,9 +42,14 @@ def choose_renderer(kind: str = "auto", needs_ggui: bool = False) -> str:
     return kind
 
 
-def make_renderer(width: int, height: int, kind: str = "auto", needs_ggui: bool = False):
-    """The renderer ``choose_renderer`` picks, ``width`` x ``height`` pixels (Taichi initialised).
+def make_renderer(width: int, height: int, kind: str = "auto", needs_ggui: bool = False,
+                  quality: str = DEFAULT_QUALITY):
+    """The renderer ``choose_renderer`` picks, ``width`` x ``height`` pixels (Taichi initialised);
+    ``quality`` shapes the Taichi rasterizer's frames (GGUI draws no shadows and one sample a pixel).
     A GGUI one without a usable Vulkan device raises ``NoVulkanDevice`` (one line)."""
     from .renderer import Renderer, TaichiRenderer
 
-    return (Renderer if choose_renderer(kind, needs_ggui) == "ggui" else TaichiRenderer)(width, height)
+    check_quality(quality)
+    if choose_renderer(kind, needs_ggui) == "ggui":
+        return Renderer(width, height)
+    return TaichiRenderer(width, height, quality)

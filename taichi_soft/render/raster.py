@@ -34,7 +34,50 @@ from .camera import Z_FAR, Z_NEAR, projection_matrix, view_matrix
 
 EMPTY = (1 << 63) - 1  # key of a pixel that no triangle covers
 mat4f = ti.types.matrix(4, 4, ti.f32)
+mat34f = ti.types.matrix(3, 4, ti.f32)
 vec3f = ti.types.vector(3, ti.f32)
+ivec4 = ti.types.vector(4, ti.i32)
+SHARE_SHIFT = 24  # bits 24-31 of a key: the key light's share of the colour, 0-255
+
+
+@ti.func
+def _unpack(key):
+    """RGB 0-255 (f32) and the key light's share (0-1) of a drawn pixel's key."""
+    rgb = ti.Vector([ti.f32((key >> 16) & 255), ti.f32((key >> 8) & 255), ti.f32(key & 255)])
+    return rgb, ti.f32((key >> SHARE_SHIFT) & 255) / 255.0
+
+
+@ti.func
+def _depth(key):
+    return ti.bit_cast(ti.cast(key >> 32, ti.i32), ti.f32)
+
+
+@ti.func
+def _lit(smap, light, bias, px, py, w):
+    """Fraction of the key light reaching the surface point seen at pixel coordinates (px, py)
+    [px] at view depth ``w`` [m]: 2 x 2 bilinear percentage-closer filtering of the shadow map
+    ``smap`` (keys of the casters' far sides, seen from the light), ``light`` mapping
+    (px w, py w, w, 1) to the map's homogeneous pixel coordinates."""
+    h = light @ ti.Vector([px * w, py * w, w, 1.0], dt=ti.f32)
+    lit = 1.0
+    if h[2] > 0.0:
+        size_y, size_x = smap.shape
+        fx, fy = h[0] / h[2] - 0.5, h[1] / h[2] - 0.5
+        x0, y0 = ti.floor(fx), ti.floor(fy)
+        tx, ty = fx - x0, fy - y0
+        ix, iy = ti.cast(x0, ti.i32), ti.cast(y0, ti.i32)
+        if ix >= -1 and iy >= -1 and ix < size_x and iy < size_y:
+            lit = 0.0
+            for k in ti.static(range(4)):
+                cx, cy = ix + k % 2, iy + k // 2
+                weight = (tx if k % 2 else 1.0 - tx) * (ty if k // 2 else 1.0 - ty)
+                hidden = False
+                if 0 <= cx < size_x and 0 <= cy < size_y:
+                    key = smap[cy, cx]
+                    hidden = key != ti.i64(EMPTY) and _depth(key) < h[2] - bias
+                if not hidden:
+                    lit += weight
+    return lit
 
 
 @ti.func
@@ -64,21 +107,47 @@ class TaichiRasterizer:
         self._mvp = (projection_matrix(cam, self.width / self.height) @ view_matrix(cam)).astype(np.float32)
         self._background = tuple(float(c) for c in background)
 
-    def draw(self, vertices, indices, colors, cull: bool = False):
+    def draw(self, vertices, indices, colors, cull=False, share=None):
         """Draw a mesh: f32 vec3 fields ``vertices`` [m] and ``colors`` (lit, RGB in [0, 1]) and an
         i32 field of triangle corners. ``cull``: skip triangles seen from behind (their corners
-        clockwise on screen), for closed surfaces wound counter-clockwise seen from outside."""
-        self._raster(vertices, indices, colors, int(cull), self._mvp)
+        clockwise on screen), for closed surfaces wound counter-clockwise seen from outside;
+        ``cull = "front"`` skips those seen from the front instead (a shadow map keeps the far
+        side of its casters, see ``shadows.py``). ``share``: f32 field, per vertex the part of its
+        colour a shadow removes (``lighting.shade``), kept per pixel for ``finish``."""
+        mode = -1 if cull == "front" else int(bool(cull))
+        if share is None:
+            self._raster(vertices, indices, colors, colors, 0, mode, self._mvp)
+        else:
+            self._raster(vertices, indices, colors, share, 1, mode, self._mvp)
 
-    def finish(self) -> np.ndarray:
-        """The frame: uint8 RGB [height, width, 3], row 0 at the top."""
+    def finish(self, shadow=None, fine=None) -> np.ndarray:
+        """The frame: uint8 RGB [height, width, 3], row 0 at the top.
+
+        ``shadow``: a ``shadows.ShadowPass`` whose map was drawn for this frame: pixels it hides
+        from the key light lose their colour's key-light share. ``fine``: a rasterizer of twice
+        this one's width and height into which the bodies were drawn (same camera): each pixel in
+        ``fine_rect`` averages its 2 x 2 samples over this image's own (the terrain), which
+        antialiases the bodies' silhouettes. The keys of all three are reset for the next frame.
+        """
         image = np.empty((self.height, self.width, 3), np.uint8)
-        self._resolve(vec3f(self._background), image)
+        none = np.zeros(4, np.int32)
+        if shadow is None:
+            light, bias, srect, smap = np.zeros((3, 4), np.float32), 0.0, none, self.key
+        else:
+            light, bias, srect, smap = shadow.matrix, shadow.bias, shadow.rect, shadow.raster.key
+        frect, fkey = (none, self.key) if fine is None else (fine.rect, fine.raster.key)
+        self._resolve(vec3f(self._background), image, smap, mat34f(light), float(bias), ivec4(srect), fkey,
+                      ivec4(frect))
         return image
+
+    def clear(self):
+        """Reset every key (a shadow map after its frame; ``finish`` resets its own)."""
+        self._clear()
 
     # -- kernels -------------------------------------------------------------------------------
     @ti.kernel
-    def _raster(self, verts: ti.template(), idx: ti.template(), colors: ti.template(), cull: ti.i32, mvp: mat4f):
+    def _raster(self, verts: ti.template(), idx: ti.template(), colors: ti.template(), share: ti.template(),
+                use_share: ti.template(), cull: ti.i32, mvp: mat4f):
         height, width = self.key.shape
         scale = ti.Vector([ti.f32(width), ti.f32(height)])
         for t in range(idx.shape[0] // 3):
@@ -89,7 +158,7 @@ class TaichiRasterizer:
             all_front = m[2, 0] > Z_NEAR and m[2, 1] > Z_NEAR and m[2, 2] > Z_NEAR
             # With every corner in front, det > 0 means clockwise on screen (rows grow downwards):
             # a closed surface wound counter-clockwise from outside shows its back there.
-            skip = det == 0.0 or (cull != 0 and all_front and det > 0.0)
+            skip = det == 0.0 or (cull > 0 and all_front and det > 0.0) or (cull < 0 and all_front and det < 0.0)
             # Screen bounding box of the part in front of the near plane: the corners in front and
             # the points where the edges cross it.
             lo = ti.Vector([ti.f32(width), ti.f32(height)])
@@ -115,6 +184,9 @@ class TaichiRasterizer:
             if not skip and c0 <= c1 and r0 <= r1:
                 inv = m.inverse()
                 rgb = ti.Matrix.cols([colors[i0], colors[i1], colors[i2]]) * 255.0
+                sh = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
+                if ti.static(use_share):
+                    sh = ti.Vector([share[i0], share[i1], share[i2]]) * 255.0
                 dx = ti.Vector([inv[0, 0], inv[1, 0], inv[2, 0]])  # d b / d column
                 for row in range(r0, r1 + 1):
                     b0 = inv @ ti.Vector([0.5, row + 0.5, 1.0], dt=ti.f32)  # b at column 0
@@ -144,21 +216,50 @@ class TaichiRasterizer:
                             if Z_NEAR <= w <= Z_FAR:
                                 c = ti.cast(ti.min(ti.max(rgb @ (b * w) + 0.5, 0.0), 255.0), ti.i64)
                                 packed = (c[0] << 16) | (c[1] << 8) | c[2]
+                                if ti.static(use_share):
+                                    q = ti.cast(ti.min(ti.max(sh.dot(b * w) + 0.5, 0.0), 255.0), ti.i64)
+                                    packed |= q << SHARE_SHIFT
                                 key = (ti.cast(ti.bit_cast(ti.f32(w), ti.i32), ti.i64) << 32) | packed
                                 if key < self.key[row, col]:  # most hidden pixels need no atomic
                                     ti.atomic_min(self.key[row, col], key)
 
     @ti.kernel
-    def _resolve(self, background: vec3f, dst: ti.types.ndarray(dtype=ti.u8, ndim=3)):
+    def _resolve(self, background: vec3f, dst: ti.types.ndarray(dtype=ti.u8, ndim=3), smap: ti.template(),
+                 light: mat34f, bias: ti.f32, srect: ivec4, fine: ti.template(), frect: ivec4):
         height, width = self.key.shape
-        bg = ti.cast(ti.min(ti.max(background, 0.0), 1.0) * 255.0 + 0.5, ti.u8)
+        bg = ti.min(ti.max(background, 0.0), 1.0) * 255.0
         for row in range(height):  # one row per task: its bytes are written in order
             for col in range(width):
                 key = self.key[row, col]
-                if key == ti.i64(EMPTY):
-                    for c in ti.static(range(3)):
-                        dst[row, col, c] = bg[c]
-                else:
-                    for c in ti.static(range(3)):
-                        dst[row, col, c] = ti.cast((key >> (16 - 8 * c)) & 255, ti.u8)
+                c = bg
+                if key != ti.i64(EMPTY):
+                    rgb, share = _unpack(key)
+                    c = rgb
+                    # Shadows only where the casters' shadow volume can be seen (``srect``).
+                    if srect[0] <= col < srect[2] and srect[1] <= row < srect[3] and share > 0.0:
+                        lit = _lit(smap, light, bias, col + 0.5, row + 0.5, _depth(key))
+                        c = rgb * (1.0 - share * (1.0 - lit))
                     self.key[row, col] = ti.i64(EMPTY)
+                if frect[0] <= col < frect[2] and frect[1] <= row < frect[3]:
+                    # 2 x 2 samples of the bodies over this pixel's terrain colour.
+                    acc = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
+                    for k in ti.static(range(4)):
+                        r, q = 2 * row + k // 2, 2 * col + k % 2
+                        sample = fine[r, q]
+                        if sample < key:
+                            rgb, share = _unpack(sample)
+                            if srect[0] <= col < srect[2] and srect[1] <= row < srect[3] and share > 0.0:
+                                lit = _lit(smap, light, bias, (q + 0.5) * 0.5, (r + 0.5) * 0.5, _depth(sample))
+                                rgb *= 1.0 - share * (1.0 - lit)
+                            acc += rgb
+                            fine[r, q] = ti.i64(EMPTY)
+                        else:
+                            acc += c
+                    c = acc * 0.25
+                for ch in ti.static(range(3)):
+                    dst[row, col, ch] = ti.cast(ti.min(c[ch] + 0.5, 255.0), ti.u8)
+
+    @ti.kernel
+    def _clear(self):
+        for row, col in self.key:
+            self.key[row, col] = ti.i64(EMPTY)

@@ -15,16 +15,17 @@ import taichi as ti
 
 from ..sim.lattice import SPRING_KINDS
 from ..sim.spring_codes import group_kind
-from .camera import CameraSpec
+from .camera import CameraSpec, projection_matrix, view_matrix
 from .embedded import body_surface
 from .lighting import LightRig, apply_rig_to_ggui, light_rig, shade
-from .meshes import BODY_COLORS, TriMesh, terrain_meshes
+from .meshes import BODY_COLORS, TriMesh, fade_checker, terrain_meshes
 from .window import open_window, window_rgb
 
 BACKGROUND = (0.86, 0.89, 0.93)
 SPRING_COLORS = {"stretch": (0.15, 0.35, 0.95), "shear": (0.10, 0.70, 0.25), "bend": (0.85, 0.15, 0.70)}
 PARTICLE_COLOR = (0.12, 0.12, 0.15)
 _RIG_ATTR = "_taichi_soft_rig"  # where ``apply_camera`` leaves the light rig on a ti.ui.Scene for ``draw_view``
+_SPEC_ATTR = "_taichi_soft_camera"  # and the camera it aimed
 
 
 def aim_camera(camera, spec: CameraSpec):
@@ -47,16 +48,19 @@ def apply_camera(scene, camera, spec: CameraSpec) -> LightRig:
     scene.set_camera(camera)
     rig = light_rig(spec)
     setattr(scene, _RIG_ATTR, rig)
+    setattr(scene, _SPEC_ATTR, spec)
     return rig
 
 
-def draw_view(canvas, scene, view: "SimulationView"):
+def draw_view(canvas, scene, view: "SimulationView", size=None):
     """Draw ``view`` into ``scene`` and the scene onto ``canvas`` over the ``BACKGROUND`` colour
-    (the camera and lights set first, by ``apply_camera``)."""
+    (the camera and lights set first, by ``apply_camera``). ``size`` = (width, height) of the
+    image [px]: the terrain's checker is filtered for it (``meshes.fade_checker``)."""
     rig = getattr(scene, _RIG_ATTR, None)
     if rig is None:
         raise RuntimeError("draw_view needs apply_camera(scene, ...) first: it sets the camera and the lights")
-    view.draw(scene, rig)
+    spec = getattr(scene, _SPEC_ATTR, None)
+    view.draw(scene, rig, None if size is None or spec is None else (spec, int(size[0]), int(size[1])))
     canvas.set_background_color(BACKGROUND)
     canvas.scene(scene)
 
@@ -86,18 +90,22 @@ def draw_mesh(scene, identity, vertices, indices, normals, colors, two_sided=Fal
 class LitMesh(NamedTuple):
     """Fields of a mesh ready to draw: f32 vec3 ``vertices`` [m], i32 triangle corners
     ``indices``, unit ``normals``, ``colors`` lit per vertex; ``closed``: faces seen from behind
-    are hidden (``TriMesh.closed``)."""
+    are hidden (``TriMesh.closed``); ``share``: f32, the key light's share of each vertex colour
+    (what a shadow takes away, ``lighting.shade``)."""
 
     vertices: object
     indices: object
     normals: object
     colors: object
     closed: bool
+    share: object = None
+    body: bool = False  # a body's surface (casts shadows), not terrain
 
 
 class _StaticMesh:
     """A ``TriMesh`` uploaded once into the f32 fields GGUI draws from, with its lit vertex
-    colours (``lit``), relit only when the light rig changes (a fixed camera: once per run)."""
+    colours (``lit``), relit only when the light rig or the camera changes (a fixed camera: once
+    per run). A checkerboard is faded for its footprint on screen first (``meshes.fade_checker``)."""
 
     def __init__(self, mesh: TriMesh):
         n = len(mesh.vertices)
@@ -105,6 +113,11 @@ class _StaticMesh:
         self.normals = ti.Vector.field(3, ti.f32, n)
         self.colors = ti.Vector.field(3, ti.f32, n)
         self.lit = ti.Vector.field(3, ti.f32, n)
+        self.share = ti.field(ti.f32, n)
+        self.checker_tile = mesh.checker_tile
+        if self.checker_tile:
+            self.faded = ti.Vector.field(3, ti.f32, n)
+            self.checker_mean = np.unique(mesh.colors, axis=0).mean(axis=0)
         self.indices = ti.field(ti.i32, mesh.triangles.size)
         self.vertices.from_numpy(mesh.vertices.astype(np.float32))
         self.normals.from_numpy(mesh.normals.astype(np.float32))
@@ -112,14 +125,24 @@ class _StaticMesh:
         self.indices.from_numpy(np.ascontiguousarray(mesh.triangles, dtype=np.int32).ravel())
         self.two_sided, self.closed = mesh.two_sided, mesh.closed
         self._lit_by = None
+        self.base = self.colors  # the colours lit: ``colors``, or ``faded`` for the last camera
 
-    def light(self, rig: LightRig):
-        if rig != self._lit_by:
-            shade(self.vertices, self.normals, self.colors, self.lit, rig, self.two_sided)
-            self._lit_by = rig
+    def light(self, rig: LightRig, viewport=None):
+        """Light for ``rig``; ``viewport`` = (camera, width, height) filters a checkerboard for it."""
+        if (rig, viewport) != self._lit_by:
+            base = self.colors
+            if self.checker_tile and viewport is not None:
+                cam, width, height = viewport
+                mvp = projection_matrix(cam, width / height) @ view_matrix(cam)
+                fade_checker(self.vertices, self.colors, self.faded, self.checker_tile, self.checker_mean, mvp,
+                             width, height)
+                base = self.faded
+            self.base = base
+            shade(self.vertices, self.normals, base, self.lit, self.share, rig, self.two_sided)
+            self._lit_by = (rig, viewport)
 
     def lit_mesh(self) -> "LitMesh":
-        return LitMesh(self.vertices, self.indices, self.normals, self.lit, self.closed)
+        return LitMesh(self.vertices, self.indices, self.normals, self.lit, self.closed, self.share)
 
 
 @ti.data_oriented
@@ -152,6 +175,7 @@ class SimulationView:
         palette = np.asarray(BODY_COLORS, dtype=np.float32)
         self.body_colors.from_numpy(palette[self.surface.vertex_body % len(palette)])
         self.surface_lit = ti.Vector.field(3, ti.f32, self.surface.n_vertices)  # body colours lit per vertex
+        self.surface_share = ti.field(ti.f32, self.surface.n_vertices)  # their key light's share
         self.per_pixel_lighting = False
         self._terrain_params = None
         self.terrain: list[_StaticMesh] = []
@@ -213,34 +237,38 @@ class SimulationView:
         if self.points is not None:
             self._gather_points(x)
 
-    def light(self, rig: LightRig):
-        """Light the drawn meshes' vertices with ``rig`` (the terrain only when the rig changed)."""
+    def light(self, rig: LightRig, viewport=None):
+        """Light the drawn meshes' vertices with ``rig`` (the terrain only when the rig or the
+        camera changed). ``viewport`` = (``CameraSpec``, width, height [px]) of the image: the
+        terrain's checker is filtered for that view (``meshes.fade_checker``); None draws it raw."""
         for mesh in self.terrain:
-            mesh.light(rig)
+            mesh.light(rig, viewport)
         if self.show_surface:
             s = self.surface
-            shade(s.vertices, s.normals, self.body_colors, self.surface_lit, rig)
+            shade(s.vertices, s.normals, self.body_colors, self.surface_lit, self.surface_share, rig)
 
     def lit_meshes(self) -> list[LitMesh]:
         """Every mesh drawn, with the vertex colours of the last ``light``."""
         meshes = [m.lit_mesh() for m in self.terrain]
         if self.show_surface:
             s = self.surface
-            meshes.append(LitMesh(s.vertices, s.indices, s.normals, self.surface_lit, True))
+            meshes.append(LitMesh(s.vertices, s.indices, s.normals, self.surface_lit, True, self.surface_share, True))
         return meshes
 
-    def draw(self, scene, rig: LightRig):
-        """Queue the view's meshes, lines and particles into a GGUI ``scene`` lit by ``rig``."""
+    def draw(self, scene, rig: LightRig, viewport=None):
+        """Queue the view's meshes, lines and particles into a GGUI ``scene`` lit by ``rig``;
+        ``viewport`` as for ``light``."""
         if self.per_pixel_lighting or self.show_particles:
             apply_rig_to_ggui(scene, rig)
             for m in self.terrain:
-                draw_mesh(scene, self._identity, m.vertices, m.indices, m.normals, m.colors, m.two_sided)
+                m.light(rig, viewport)  # only for the checker's filtered colours
+                draw_mesh(scene, self._identity, m.vertices, m.indices, m.normals, m.base, m.two_sided)
             if self.show_surface:
                 s = self.surface
                 draw_mesh(scene, self._identity, s.vertices, s.indices, s.normals, self.body_colors)
         else:
             scene.ambient_light((1.0, 1.0, 1.0))  # the vertex colours are lit already: GGUI passes them on
-            self.light(rig)
+            self.light(rig, viewport)
             for m in self.lit_meshes():
                 draw_mesh(scene, self._identity, m.vertices, m.indices, m.normals, m.colors)
         for name, (first, count) in self.spring_ranges.items():
@@ -279,7 +307,7 @@ class Renderer:
         if update:
             view.update()
         apply_camera(self.scene, self.camera, cam)
-        draw_view(self.canvas, self.scene, view)
+        draw_view(self.canvas, self.scene, view, (self.width, self.height))
         return self.read_image()
 
     def read_image(self) -> np.ndarray:
@@ -293,13 +321,24 @@ class Renderer:
 class TaichiRenderer:
     """The offscreen renderer without Vulkan: ``raster.TaichiRasterizer`` draws the views' lit
     meshes in Taichi kernels (the CPU path; see ``choose_renderer``). Same ``render`` as
-    ``Renderer``; surfaces and terrain only (particles and springs need GGUI)."""
+    ``Renderer``; surfaces and terrain only (particles and springs need GGUI).
 
-    def __init__(self, width: int, height: int):
+    ``quality`` (``choose.QUALITIES``): ``low`` draws what GGUI draws (the checker filtered for its
+    footprint, no shadows, one sample a pixel); ``medium`` adds the bodies' shadows from the key
+    light (``shadows.py``); ``high`` also draws the bodies with 2 x 2 samples a pixel, which
+    antialiases their silhouettes.
+    """
+
+    def __init__(self, width: int, height: int, quality: str = "high"):
+        from .choose import check_quality
         from .raster import TaichiRasterizer
+        from .shadows import FinePass, ShadowPass
 
         self.width, self.height = int(width), int(height)
+        self.quality = check_quality(quality)
         self.raster = TaichiRasterizer(self.width, self.height)
+        self.shadow = ShadowPass() if self.quality in ("medium", "high") else None
+        self.fine = FinePass(self.width, self.height) if self.quality == "high" else None
 
     @property
     def aspect(self) -> float:
@@ -314,11 +353,32 @@ class TaichiRenderer:
             raise ValueError("the taichi renderer draws surfaces and terrain only; particles and springs need GGUI")
         if update:
             view.update()
-        view.light(light_rig(cam))
+        rig = light_rig(cam)
+        view.light(rig, (cam, self.width, self.height))
+        meshes = view.lit_meshes()
+        bodies = [m for m in meshes if m.body]
+        shadow = fine = None
+        if bodies and (self.shadow is not None or self.fine is not None):
+            pts = view.surface.vertices.to_numpy()
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
+                terrain = view.sim.terrain
+                if self.shadow is not None and self.shadow.prepare(cam, self.width, self.height, rig.key_position,
+                                                                   lo, hi, terrain.kind, terrain.params()):
+                    shadow = self.shadow
+                    for m in bodies:
+                        shadow.cast(m.vertices, m.indices, m.colors)
+                if self.fine is not None:
+                    fine = self.fine
+                    fine.prepare(cam, BACKGROUND, lo, hi)
         self.raster.begin(cam, BACKGROUND)
-        for m in view.lit_meshes():
-            self.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed)
-        return self.raster.finish()
+        for m in meshes:
+            target = fine.raster if (fine is not None and m.body) else self.raster
+            target.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
+        image = self.raster.finish(shadow, fine)
+        if shadow is not None:
+            shadow.clear()
+        return image
 
     def close(self):
         pass
