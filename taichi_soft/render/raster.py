@@ -120,14 +120,16 @@ class TaichiRasterizer:
         else:
             self._raster(vertices, indices, colors, share, 1, mode, self._mvp)
 
-    def finish(self, shadow=None, fine=None) -> np.ndarray:
+    def finish(self, shadow=None, fine=None, keep: bool = False) -> np.ndarray:
         """The frame: uint8 RGB [height, width, 3], row 0 at the top.
 
         ``shadow``: a ``shadows.ShadowPass`` whose map was drawn for this frame: pixels it hides
-        from the key light lose their colour's key-light share. ``fine``: a rasterizer of twice
-        this one's width and height into which the bodies were drawn (same camera): each pixel in
-        ``fine_rect`` averages its 2 x 2 samples over this image's own (the terrain), which
-        antialiases the bodies' silhouettes. The keys of all three are reset for the next frame.
+        from the key light lose their colour's key-light share. ``fine``: a ``shadows.BodyPass``,
+        a rasterizer of ``fine.factor`` times this one's width and height into which the bodies
+        were drawn (same camera): each pixel in ``fine.rect`` averages its factor x factor samples
+        over this image's own (the terrain); 2 antialiases the bodies' silhouettes. The keys of
+        ``fine`` are reset for the next frame, and this one's unless ``keep`` (a terrain drawn
+        once for a fixed camera).
         """
         image = np.empty((self.height, self.width, 3), np.uint8)
         none = np.zeros(4, np.int32)
@@ -135,9 +137,9 @@ class TaichiRasterizer:
             light, bias, srect, smap = np.zeros((3, 4), np.float32), 0.0, none, self.key
         else:
             light, bias, srect, smap = shadow.matrix, shadow.bias, shadow.rect, shadow.raster.key
-        frect, fkey = (none, self.key) if fine is None else (fine.rect, fine.raster.key)
+        frect, fkey, factor = (none, self.key, 1) if fine is None else (fine.rect, fine.raster.key, fine.factor)
         self._resolve(vec3f(self._background), image, smap, mat34f(light), float(bias), ivec4(srect), fkey,
-                      ivec4(frect))
+                      ivec4(frect), factor, int(not keep))
         return image
 
     def clear(self):
@@ -225,7 +227,8 @@ class TaichiRasterizer:
 
     @ti.kernel
     def _resolve(self, background: vec3f, dst: ti.types.ndarray(dtype=ti.u8, ndim=3), smap: ti.template(),
-                 light: mat34f, bias: ti.f32, srect: ivec4, fine: ti.template(), frect: ivec4):
+                 light: mat34f, bias: ti.f32, srect: ivec4, fine: ti.template(), frect: ivec4, factor: ti.template(),
+                 reset: ti.i32):
         height, width = self.key.shape
         bg = ti.min(ti.max(background, 0.0), 1.0) * 255.0
         for row in range(height):  # one row per task: its bytes are written in order
@@ -239,23 +242,24 @@ class TaichiRasterizer:
                     if srect[0] <= col < srect[2] and srect[1] <= row < srect[3] and share > 0.0:
                         lit = _lit(smap, light, bias, col + 0.5, row + 0.5, _depth(key))
                         c = rgb * (1.0 - share * (1.0 - lit))
-                    self.key[row, col] = ti.i64(EMPTY)
+                    if reset:
+                        self.key[row, col] = ti.i64(EMPTY)
                 if frect[0] <= col < frect[2] and frect[1] <= row < frect[3]:
-                    # 2 x 2 samples of the bodies over this pixel's terrain colour.
+                    # factor x factor samples of the bodies over this pixel's terrain colour.
                     acc = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
-                    for k in ti.static(range(4)):
-                        r, q = 2 * row + k // 2, 2 * col + k % 2
+                    for k in ti.static(range(factor * factor)):
+                        r, q = factor * row + k // factor, factor * col + k % factor
                         sample = fine[r, q]
                         if sample < key:
                             rgb, share = _unpack(sample)
                             if srect[0] <= col < srect[2] and srect[1] <= row < srect[3] and share > 0.0:
-                                lit = _lit(smap, light, bias, (q + 0.5) * 0.5, (r + 0.5) * 0.5, _depth(sample))
+                                lit = _lit(smap, light, bias, (q + 0.5) / factor, (r + 0.5) / factor, _depth(sample))
                                 rgb *= 1.0 - share * (1.0 - lit)
                             acc += rgb
                             fine[r, q] = ti.i64(EMPTY)
                         else:
                             acc += c
-                    c = acc * 0.25
+                    c = acc / (factor * factor)
                 for ch in ti.static(range(3)):
                     dst[row, col, ch] = ti.cast(ti.min(c[ch] + 0.5, 255.0), ti.u8)
 

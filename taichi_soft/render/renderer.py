@@ -178,6 +178,7 @@ class SimulationView:
         self.surface_share = ti.field(ti.f32, self.surface.n_vertices)  # their key light's share
         self.per_pixel_lighting = False
         self._terrain_params = None
+        self.terrain_version = 0  # counts terrain rebuilds (a renderer may keep the terrain's image)
         self.terrain: list[_StaticMesh] = []
         self._sync_terrain()
         self.points = None
@@ -226,6 +227,7 @@ class SimulationView:
         params = (terrain.kind, terrain.params())
         if params != self._terrain_params:
             self._terrain_params = params
+            self.terrain_version += 1
             self.terrain = [_StaticMesh(m) for m in terrain_meshes(params[0], params[1], self.sim.scene.data)]
 
     def update(self):
@@ -332,13 +334,14 @@ class TaichiRenderer:
     def __init__(self, width: int, height: int, quality: str = "high"):
         from .choose import check_quality
         from .raster import TaichiRasterizer
-        from .shadows import FinePass, ShadowPass
+        from .shadows import BodyPass, ShadowPass
 
         self.width, self.height = int(width), int(height)
         self.quality = check_quality(quality)
         self.raster = TaichiRasterizer(self.width, self.height)
         self.shadow = ShadowPass() if self.quality in ("medium", "high") else None
-        self.fine = FinePass(self.width, self.height) if self.quality == "high" else None
+        self.bodies = BodyPass(self.width, self.height, 2 if self.quality == "high" else 1)
+        self._terrain_drawn = None  # (view, its terrain_version, camera) whose terrain image self.raster holds
 
     @property
     def aspect(self) -> float:
@@ -348,6 +351,10 @@ class TaichiRenderer:
         """Draw ``view`` (its current state unless ``update`` is False) seen by ``cam``.
 
         Returns uint8 RGB [height, width, 3], row 0 at the top.
+
+        The terrain and the bodies are drawn apart: the terrain's image (keys) is kept while the
+        terrain and the camera stay the same (a fixed camera: drawn once per run), the bodies are
+        drawn every frame into ``self.bodies`` and composited over it in the resolve.
         """
         if view.show_particles or view.show_springs:
             raise ValueError("the taichi renderer draws surfaces and terrain only; particles and springs need GGUI")
@@ -358,24 +365,34 @@ class TaichiRenderer:
         meshes = view.lit_meshes()
         bodies = [m for m in meshes if m.body]
         shadow = fine = None
-        if bodies and (self.shadow is not None or self.fine is not None):
+        if bodies:
             pts = view.surface.vertices.to_numpy()
             lo, hi = pts.min(axis=0), pts.max(axis=0)
-            if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
-                terrain = view.sim.terrain
-                if self.shadow is not None and self.shadow.prepare(cam, self.width, self.height, rig.key_position,
-                                                                   lo, hi, terrain.kind, terrain.params()):
-                    shadow = self.shadow
-                    for m in bodies:
-                        shadow.cast(m.vertices, m.indices, m.colors)
-                if self.fine is not None:
-                    fine = self.fine
-                    fine.prepare(cam, BACKGROUND, lo, hi)
+            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+                lo = hi = None
+            terrain = view.sim.terrain
+            if lo is not None and self.shadow is not None and self.shadow.prepare(
+                    cam, self.width, self.height, rig.key_position, lo, hi, terrain.kind, terrain.params()):
+                shadow = self.shadow
+                for m in bodies:
+                    shadow.cast(m.vertices, m.indices, m.colors)
+            fine = self.bodies
+            if lo is None:  # a non-finite state: drawn over the whole frame
+                fine.raster.begin(cam, BACKGROUND)
+                fine.rect = np.array([0, 0, self.width, self.height], np.int32)
+            else:
+                fine.prepare(cam, BACKGROUND, lo, hi)
+            for m in bodies:
+                fine.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
+        drawn = (view, view.terrain_version, cam)
         self.raster.begin(cam, BACKGROUND)
-        for m in meshes:
-            target = fine.raster if (fine is not None and m.body) else self.raster
-            target.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
-        image = self.raster.finish(shadow, fine)
+        if self._terrain_drawn is None or drawn[0] is not self._terrain_drawn[0] or drawn[1:] != self._terrain_drawn[1:]:
+            self.raster.clear()
+            for m in meshes:
+                if not m.body:
+                    self.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
+            self._terrain_drawn = drawn
+        image = self.raster.finish(shadow, fine, keep=True)
         if shadow is not None:
             shadow.clear()
         return image

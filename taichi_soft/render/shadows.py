@@ -13,7 +13,7 @@ filtering, which antialiases the shadow's edge.
 
 Per frame only the pixels where a shadow can be are looked up (``rect``): the screen box of the
 bodies' bounding box and of its corners pushed away from the light until they pass the terrain.
-The bodies' 2 x 2 supersampling (``FinePass``) likewise touches only the bodies' screen box.
+The bodies' own pass (``BodyPass``, 2 x 2 samples a pixel at high quality) likewise touches only the bodies' screen box.
 
 Pure numpy apart from the rasterizers it owns.
 """
@@ -132,14 +132,17 @@ class ShadowPass:
             self.drawn = False
 
 
-class FinePass:
-    """The bodies drawn at twice the image's width and height (2 x 2 samples a pixel) inside
-    ``rect`` [px of the image], their screen box; ``raster.finish`` averages and resets them."""
+class BodyPass:
+    """The bodies drawn apart from the terrain, at ``factor`` times the image's width and height
+    (``factor`` x ``factor`` samples a pixel; 2 antialiases their silhouettes), inside ``rect``
+    [px of the image], their screen box; ``raster.finish`` composites, averages and resets them.
+    Drawn apart, the terrain's own image can be kept from frame to frame while the camera holds."""
 
-    def __init__(self, width: int, height: int):
+    def __init__(self, width: int, height: int, factor: int):
         from .raster import TaichiRasterizer
 
-        self.raster = TaichiRasterizer(2 * int(width), 2 * int(height))
+        self.factor = int(factor)
+        self.raster = TaichiRasterizer(self.factor * int(width), self.factor * int(height))
         self.width, self.height = int(width), int(height)
         self.rect = np.zeros(4, np.int32)
 
