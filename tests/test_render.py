@@ -202,9 +202,12 @@ def test_fast_paths_match_the_per_pixel_reference(renderer, name):
     it. On the terrain (1 m tiles, lights tens of metres away) that is below 2 levels; on a body it
     is largest on the rounded edges, where the normal turns through 90 degrees within one lattice
     cell, and a 4^3 body is all edges: measured up to 34 levels, on 2-3 % of the pixels at most.
-    The Taichi rasterizer draws the same vertex colours as GGUI, so it differs from GGUI's
-    per-vertex frame only on pixels whose centre lies on an edge between two triangles (Vulkan's
-    top-left rule and our nearer-then-smaller-key rule may pick different sides): isolated pixels.
+    The Taichi rasterizer at ``quality="low"`` draws what GGUI can draw, the same vertex colours
+    (the checker filtered alike), so it differs from GGUI's per-vertex frame only on pixels whose
+    centre lies on an edge between two triangles (Vulkan's top-left rule and our
+    nearer-then-smaller-key rule may pick different sides): isolated pixels. Its shadows and
+    supersampled bodies (``high``, GGUI has neither) change only pixels inside the screen boxes
+    of the bodies and of their shadow volume, and leave every other pixel as it was.
     """
     from taichi_soft.render.renderer import SimulationView, TaichiRenderer
     from taichi_soft.sim.simulation import Simulation
@@ -217,12 +220,20 @@ def test_fast_paths_match_the_per_pixel_reference(renderer, name):
     reference = renderer.render(view, cam)
     view.per_pixel_lighting = False
     vertex = renderer.render(view, cam)
-    taichi = TaichiRenderer(renderer.width, renderer.height).render(view, cam)
+    taichi = TaichiRenderer(renderer.width, renderer.height, quality="low").render(view, cam)
     d = pixel_differences(vertex, reference)
     assert d.mean() < 1.0 and (d > 8).mean() < 0.05 and d.max() <= 60, (d.mean(), (d > 8).mean(), d.max())
     t = pixel_differences(taichi, vertex)
     assert t.mean() < 0.05 and (t > 8).mean() < 0.002, (t.mean(), (t > 8).mean(), t.max())
     check_bodies_and_terrain(taichi, sim.scene, cam)
+    high = TaichiRenderer(renderer.width, renderer.height, quality="high")
+    best = high.render(view, cam)
+    boxes = np.zeros(best.shape[:2], bool)
+    for rect in (high.shadow.rect, high.bodies.rect):
+        boxes[rect[1]:rect[3], rect[0]:rect[2]] = True
+    changed = pixel_differences(best, taichi) > 0
+    assert changed.any() and not (changed & ~boxes).any(), (changed.sum(), (changed & ~boxes).sum())
+    check_bodies_and_terrain(best, sim.scene, cam)
 
 
 def test_terrain_is_drawn_from_the_live_terrain(renderer):

@@ -184,7 +184,8 @@ def _fade_checker(vertices: ti.template(), colors: ti.template(), out: ti.templa
                 foot = ti.max(ti.abs(inv[0, 0]) + ti.abs(inv[0, 1]), ti.abs(inv[1, 0]) + ti.abs(inv[1, 1]))
                 keep = ti.min(ti.max(2.0 * (1.0 - foot * tiles_per_cell), 0.0), 1.0)
         for k in ti.static(range(4)):
-            out[4 * cell + k] = mean + keep * (colors[4 * cell + k] - mean)
+            c = colors[4 * cell + k]
+            out[4 * cell + k] = c if keep >= 1.0 else mean + keep * (c - mean)  # exact where kept
 
 
 def fade_checker(vertices, colors, out, tile: int, mean, mvp, width: int, height: int):
