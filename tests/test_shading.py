@@ -65,15 +65,20 @@ SIZE = 4.0  # the plane scene's cube [m]
 PLANE_Y = -1.0
 
 
-def resting_cube(lift: float):
-    """The plane scene's cube, axis-aligned and at rest, its bottom ``lift`` m above the plane."""
+TOP_VIEW = ([4, 28, 12], [0, 0, 0])  # from high up: the ground round the cube is in view
+SIDE_VIEW = ([16, 7, 12], [0, 0, -2])  # lower: the key light lower too, so a lift moves the shadow more
+
+
+def resting_cube(lift: float, camera=TOP_VIEW):
+    """The plane scene's cube, axis-aligned and at rest, its bottom ``lift`` m above the plane,
+    seen by ``camera`` = (position, look-at) [m]."""
     from taichi_soft.sim.integrators import names
     from taichi_soft.sim.scene import load_scene
     from taichi_soft.sim.simulation import Simulation
 
     center = PLANE_Y + SIZE / 2 + lift
     scene = load_scene("plane", ["body.0.n=4", f"body.0.center=[0, {center}, 0]", "body.0.rotation.degrees=0",
-                                 "render.camera.position=[14, 14, 24]", "render.camera.lookat=[0, 0, 0]"],
+                                 f"render.camera.position={camera[0]}", f"render.camera.lookat={camera[1]}"],
                        integrator_names=names())
     return Simulation(scene)
 
@@ -145,7 +150,7 @@ def test_cube_shadows_the_plane_where_the_key_light_says(lift):
     """
     from taichi_soft.render.lighting import light_rig
 
-    sim = resting_cube(lift)
+    sim = resting_cube(lift, SIDE_VIEW)
     shadowed, plain, near_cube, cam = shadow_frames(sim)
     key = np.asarray(light_rig(cam).key_position)
     hits = plane_hits(cam, W, H, PLANE_Y)
@@ -164,7 +169,7 @@ def test_cube_shadows_the_plane_where_the_key_light_says(lift):
     np.testing.assert_array_equal(shadowed[outside], plain[outside])
 
     if lift:  # the shadow moved as the light's direction says: away from where the resting one was
-        rest = resting_cube(0.0)
+        rest = resting_cube(0.0, SIDE_VIEW)
         moved = signed_distance(analytic_shadow(rest, key), hits[..., [0, 2]])
         left = usable & (moved > MARGIN) & (dist < -MARGIN)  # in the resting shadow, lit now
         entered = inside & (moved < -MARGIN)  # in the shadow now, lit at rest
@@ -198,8 +203,9 @@ SS = 4  # the reference: 4 x 4 samples a pixel
 
 
 def grazing_frames():
-    """(filtered frame, point-sampled frame, 4 x 4 supersampled reference, camera) of the plane
-    seen from 1.5 m above it, looking along it (bodies hidden)."""
+    """(filtered frame (``low``), point-sampled frame, 4 x 4 supersampled reference, camera, view,
+    ``high`` frame) of the plane seen from 1.5 m above it, looking along it (bodies hidden; a
+    fixed camera, so ``high`` supersamples the terrain)."""
     from taichi_soft.render.lighting import light_rig
     from taichi_soft.render.raster import TaichiRasterizer
     from taichi_soft.render.renderer import BACKGROUND, SimulationView, TaichiRenderer
@@ -214,7 +220,9 @@ def grazing_frames():
     from taichi_soft.render.camera import scene_camera
 
     cam = scene_camera(scene.data, GW / GH)
+    assert not cam.follow
     filtered = TaichiRenderer(GW, GH, "low").render(view, cam)
+    high = TaichiRenderer(GW, GH, "high").render(view, cam)
 
     def raw(width, height):
         view.light(light_rig(cam))  # no viewport: the checker unfiltered
@@ -227,7 +235,7 @@ def grazing_frames():
     point = raw(GW, GH)
     fine = raw(SS * GW, SS * GH).astype(float)
     reference = fine.reshape(GH, SS, GW, SS, 3).mean(axis=(1, 3))
-    return filtered, point, reference, cam, view
+    return filtered, point, reference, cam, view, high
 
 
 def test_checker_at_a_grazing_angle_has_nothing_above_nyquist():
@@ -243,7 +251,7 @@ def test_checker_at_a_grazing_angle_has_nothing_above_nyquist():
     """
     from taichi_soft.render.meshes import CHECKER
 
-    filtered, point, reference, cam, view = grazing_frames()
+    filtered, point, reference, cam, view, high = grazing_frames()
     hits = plane_hits(cam, GW, GH, PLANE_Y)
     # A tile's height on screen at each pixel: 1 m / (metres of plane per pixel row).
     step = np.abs(np.diff(hits[..., 2], axis=0))
@@ -261,18 +269,23 @@ def test_checker_at_a_grazing_angle_has_nothing_above_nyquist():
 
     assert rms(point) > contrast / 4, (rms(point), contrast)
     assert rms(filtered) <= contrast / 4, (rms(filtered), rms(point), contrast)
+    assert rms(high) <= contrast / 4, (rms(high), rms(point), contrast)
 
 
 def test_checker_keeps_its_contrast_where_tiles_are_large():
     """The filter only fades what is too small to draw: where tiles are 4 pixels tall or more the
-    frame equals the unfiltered one."""
-    filtered, point, reference, cam, view = grazing_frames()
+    ``low`` frame equals the unfiltered one, and the ``high`` frame, whose terrain has 4 x 4
+    samples a pixel, equals the 4 x 4 supersampled reference (to rounding: 1 level), tile edges
+    included, where one sample a pixel leaves staircases (checked to differ)."""
+    filtered, point, reference, cam, view, high = grazing_frames()
     hits = plane_hits(cam, GW, GH, PLANE_Y)
     tall = np.full((GH, GW), np.nan)
     tall[1:] = 1.0 / np.abs(np.diff(hits[..., 2], axis=0))
     near = np.isfinite(tall) & (tall >= 4.0)
     assert near.sum() >= 300, near.sum()
     np.testing.assert_array_equal(filtered[near], point[near])
+    assert np.abs(point[near] - reference[near]).max() > 8  # the staircases of one sample a pixel
+    assert np.abs(high[near] - reference[near]).max() <= 1.0, np.abs(high[near] - reference[near]).max()
 
 
 # -- silhouettes -----------------------------------------------------------------------------------

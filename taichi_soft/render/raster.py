@@ -35,6 +35,7 @@ from .camera import Z_FAR, Z_NEAR, projection_matrix, view_matrix
 EMPTY = (1 << 63) - 1  # key of a pixel that no triangle covers
 mat4f = ti.types.matrix(4, 4, ti.f32)
 mat34f = ti.types.matrix(3, 4, ti.f32)
+vec2f = ti.types.vector(2, ti.f32)
 vec3f = ti.types.vector(3, ti.f32)
 ivec4 = ti.types.vector(4, ti.i32)
 SHARE_SHIFT = 24  # bits 24-31 of a key: the key light's share of the colour, 0-255
@@ -107,20 +108,35 @@ class TaichiRasterizer:
         self._mvp = (projection_matrix(cam, self.width / self.height) @ view_matrix(cam)).astype(np.float32)
         self._background = tuple(float(c) for c in background)
 
-    def draw(self, vertices, indices, colors, cull=False, share=None):
+    def begin_matrix(self, mvp, background):
+        """Start a frame through the 4 x 4 world -> clip matrix ``mvp`` (a part of a larger image:
+        ``supersample_terrain``)."""
+        self._mvp = np.asarray(mvp, np.float32)
+        self._background = tuple(float(c) for c in background)
+
+    def downsample_into(self, color, row0: int, factor: int):
+        """Average this image's ``factor`` x ``factor`` pixel blocks (background where nothing was
+        drawn) into rows ``row0``... of the f32 vec3 field ``color`` [0-255], and reset the keys."""
+        self._downsample(color, row0, factor, vec3f(self._background))
+
+    def draw(self, vertices, indices, colors, cull=False, share=None, light=None):
         """Draw a mesh: f32 vec3 fields ``vertices`` [m] and ``colors`` (lit, RGB in [0, 1]) and an
         i32 field of triangle corners. ``cull``: skip triangles seen from behind (their corners
         clockwise on screen), for closed surfaces wound counter-clockwise seen from outside;
         ``cull = "front"`` skips those seen from the front instead (a shadow map keeps the far
         side of its casters, see ``shadows.py``). ``share``: f32 field, per vertex the part of its
-        colour a shadow removes (``lighting.shade``), kept per pixel for ``finish``."""
+        colour a shadow removes (``lighting.shade``), kept per pixel for ``finish``. ``light``: the
+        key light's position [m] for a closed surface: its triangles turned away from the light are
+        in the surface's own shadow, so they are drawn without that share (and need no look-up in
+        the shadow map, where they are themselves, at a depth too steep to compare reliably)."""
         mode = -1 if cull == "front" else int(bool(cull))
+        pos = vec3f(0.0, 0.0, 0.0) if light is None else vec3f(*map(float, light))
         if share is None:
-            self._raster(vertices, indices, colors, colors, 0, mode, self._mvp)
+            self._raster(vertices, indices, colors, colors, 0, mode, self._mvp, pos, 0)
         else:
-            self._raster(vertices, indices, colors, share, 1, mode, self._mvp)
+            self._raster(vertices, indices, colors, share, 1, mode, self._mvp, pos, int(light is not None))
 
-    def finish(self, shadow=None, fine=None, keep: bool = False) -> np.ndarray:
+    def finish(self, shadow=None, fine=None, keep: bool = False, color=None) -> np.ndarray:
         """The frame: uint8 RGB [height, width, 3], row 0 at the top.
 
         ``shadow``: a ``shadows.ShadowPass`` whose map was drawn for this frame: pixels it hides
@@ -129,18 +145,28 @@ class TaichiRasterizer:
         were drawn (same camera): each pixel in ``fine.rect`` averages its factor x factor samples
         over this image's own (the terrain); 2 antialiases the bodies' silhouettes. The keys of
         ``fine`` are reset for the next frame, and this one's unless ``keep`` (a terrain drawn
-        once for a fixed camera).
+        once for a fixed camera). ``color``: an f32 vec3 field [height, width] of this image's
+        colours (0-255) drawn with more samples (``downsample_into``), used instead of the keys'.
         """
         image = np.empty((self.height, self.width, 3), np.uint8)
         none = np.zeros(4, np.int32)
         if shadow is None:
-            light, bias, srect, smap = np.zeros((3, 4), np.float32), 0.0, none, self.key
+            light, bias, srect, smap = np.zeros((3, 4), np.float32), (0.0, 0.0), none, self.key
         else:
-            light, bias, srect, smap = shadow.matrix, shadow.bias, shadow.rect, shadow.raster.key
+            light, bias, srect, smap = shadow.matrix, (shadow.bias, shadow.body_bias), shadow.rect, shadow.raster.key
         frect, fkey, factor = (none, self.key, 1) if fine is None else (fine.rect, fine.raster.key, fine.factor)
-        self._resolve(vec3f(self._background), image, smap, mat34f(light), float(bias), ivec4(srect), fkey,
-                      ivec4(frect), factor, int(not keep))
+        if color is None:
+            self._resolve(vec3f(self._background), image, smap, mat34f(light), vec2f(bias), ivec4(srect), fkey,
+                          ivec4(frect), factor, int(not keep), self._dummy_color(), 0)
+        else:
+            self._resolve(vec3f(self._background), image, smap, mat34f(light), vec2f(bias), ivec4(srect), fkey,
+                          ivec4(frect), factor, int(not keep), color, 1)
         return image
+
+    def _dummy_color(self):
+        if not hasattr(self, "_no_color"):
+            self._no_color = ti.Vector.field(3, ti.f32, (1, 1))
+        return self._no_color
 
     def clear(self):
         """Reset every key (a shadow map after its frame; ``finish`` resets its own)."""
@@ -149,7 +175,7 @@ class TaichiRasterizer:
     # -- kernels -------------------------------------------------------------------------------
     @ti.kernel
     def _raster(self, verts: ti.template(), idx: ti.template(), colors: ti.template(), share: ti.template(),
-                use_share: ti.template(), cull: ti.i32, mvp: mat4f):
+                use_share: ti.template(), cull: ti.i32, mvp: mat4f, light: vec3f, self_shadow: ti.i32):
         height, width = self.key.shape
         scale = ti.Vector([ti.f32(width), ti.f32(height)])
         for t in range(idx.shape[0] // 3):
@@ -189,6 +215,14 @@ class TaichiRasterizer:
                 sh = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
                 if ti.static(use_share):
                     sh = ti.Vector([share[i0], share[i1], share[i2]]) * 255.0
+                    if self_shadow != 0:
+                        p0 = verts[i0]
+                        normal = (verts[i1] - p0).cross(verts[i2] - p0)
+                        if normal.dot(light - p0) <= 0.0:  # turned away from the light: in its own shadow
+                            for k in ti.static(range(3)):
+                                for ch in ti.static(range(3)):
+                                    rgb[ch, k] *= 1.0 - sh[k] / 255.0
+                            sh = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
                 dx = ti.Vector([inv[0, 0], inv[1, 0], inv[2, 0]])  # d b / d column
                 for row in range(r0, r1 + 1):
                     b0 = inv @ ti.Vector([0.5, row + 0.5, 1.0], dt=ti.f32)  # b at column 0
@@ -227,20 +261,24 @@ class TaichiRasterizer:
 
     @ti.kernel
     def _resolve(self, background: vec3f, dst: ti.types.ndarray(dtype=ti.u8, ndim=3), smap: ti.template(),
-                 light: mat34f, bias: ti.f32, srect: ivec4, fine: ti.template(), frect: ivec4, factor: ti.template(),
-                 reset: ti.i32):
+                 light: mat34f, bias: vec2f, srect: ivec4, fine: ti.template(), frect: ivec4, factor: ti.template(),
+                 reset: ti.i32, color: ti.template(), use_color: ti.template()):
         height, width = self.key.shape
         bg = ti.min(ti.max(background, 0.0), 1.0) * 255.0
         for row in range(height):  # one row per task: its bytes are written in order
             for col in range(width):
                 key = self.key[row, col]
                 c = bg
+                if ti.static(use_color):
+                    c = color[row, col]
                 if key != ti.i64(EMPTY):
                     rgb, share = _unpack(key)
+                    if ti.static(use_color):
+                        rgb = c
                     c = rgb
                     # Shadows only where the casters' shadow volume can be seen (``srect``).
                     if srect[0] <= col < srect[2] and srect[1] <= row < srect[3] and share > 0.0:
-                        lit = _lit(smap, light, bias, col + 0.5, row + 0.5, _depth(key))
+                        lit = _lit(smap, light, bias[0], col + 0.5, row + 0.5, _depth(key))
                         c = rgb * (1.0 - share * (1.0 - lit))
                     if reset:
                         self.key[row, col] = ti.i64(EMPTY)
@@ -253,7 +291,7 @@ class TaichiRasterizer:
                         if sample < key:
                             rgb, share = _unpack(sample)
                             if srect[0] <= col < srect[2] and srect[1] <= row < srect[3] and share > 0.0:
-                                lit = _lit(smap, light, bias, (q + 0.5) / factor, (r + 0.5) / factor, _depth(sample))
+                                lit = _lit(smap, light, bias[1], (q + 0.5) / factor, (r + 0.5) / factor, _depth(sample))
                                 rgb *= 1.0 - share * (1.0 - lit)
                             acc += rgb
                             fine[r, q] = ti.i64(EMPTY)
@@ -262,6 +300,22 @@ class TaichiRasterizer:
                     c = acc / (factor * factor)
                 for ch in ti.static(range(3)):
                     dst[row, col, ch] = ti.cast(ti.min(c[ch] + 0.5, 255.0), ti.u8)
+
+    @ti.kernel
+    def _downsample(self, color: ti.template(), row0: ti.i32, factor: ti.i32, background: vec3f):
+        height, width = self.key.shape
+        bg = ti.min(ti.max(background, 0.0), 1.0) * 255.0
+        for row, col in ti.ndrange(height // factor, width // factor):
+            acc = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
+            for i, j in ti.ndrange(factor, factor):
+                key = self.key[factor * row + i, factor * col + j]
+                if key == ti.i64(EMPTY):
+                    acc += bg
+                else:
+                    acc += _unpack(key)[0]
+                    self.key[factor * row + i, factor * col + j] = ti.i64(EMPTY)
+            if row0 + row < color.shape[0]:
+                color[row0 + row, col] = acc / ti.f32(factor * factor)
 
     @ti.kernel
     def _clear(self):

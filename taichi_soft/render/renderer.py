@@ -328,8 +328,13 @@ class TaichiRenderer:
     ``quality`` (``choose.QUALITIES``): ``low`` draws what GGUI draws (the checker filtered for its
     footprint, no shadows, one sample a pixel); ``medium`` adds the bodies' shadows from the key
     light (``shadows.py``); ``high`` also draws the bodies with 2 x 2 samples a pixel, which
-    antialiases their silhouettes.
+    antialiases their silhouettes, and, seen by a fixed camera, the terrain with ``TERRAIN_SAMPLES``
+    x ``TERRAIN_SAMPLES`` samples a pixel, once for the whole run (its image is kept): the
+    checker's edges and the terrain's outline antialiased as well as filtered.
     """
+
+    TERRAIN_SAMPLES = 4  # a side, for a fixed camera at high quality
+    STRIP_ROWS = 64  # image rows drawn at a time when supersampling the terrain (bounds its memory)
 
     def __init__(self, width: int, height: int, quality: str = "high"):
         from .choose import check_quality
@@ -342,6 +347,7 @@ class TaichiRenderer:
         self.shadow = ShadowPass() if self.quality in ("medium", "high") else None
         self.bodies = BodyPass(self.width, self.height, 2 if self.quality == "high" else 1)
         self._terrain_drawn = None  # (view, its terrain_version, camera) whose terrain image self.raster holds
+        self._terrain_color = None  # the supersampled terrain's colours, when drawn
 
     @property
     def aspect(self) -> float:
@@ -361,7 +367,9 @@ class TaichiRenderer:
         if update:
             view.update()
         rig = light_rig(cam)
-        view.light(rig, (cam, self.width, self.height))
+        ss = self.TERRAIN_SAMPLES if self.quality == "high" and not cam.follow else 1
+        # The checker is filtered for the footprint of the samples it is drawn with.
+        view.light(rig, (cam, ss * self.width, ss * self.height))
         meshes = view.lit_meshes()
         bodies = [m for m in meshes if m.body]
         shadow = fine = None
@@ -383,19 +391,42 @@ class TaichiRenderer:
             else:
                 fine.prepare(cam, BACKGROUND, lo, hi)
             for m in bodies:
-                fine.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
+                fine.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share,
+                                 light=None if shadow is None else rig.key_position)
         drawn = (view, view.terrain_version, cam)
         self.raster.begin(cam, BACKGROUND)
         if self._terrain_drawn is None or drawn[0] is not self._terrain_drawn[0] or drawn[1:] != self._terrain_drawn[1:]:
             self.raster.clear()
-            for m in meshes:
-                if not m.body:
-                    self.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
+            terrain = [m for m in meshes if not m.body]
+            for m in terrain:
+                self.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
+            self._terrain_color = self._supersample(terrain, cam, ss) if ss > 1 else None
             self._terrain_drawn = drawn
-        image = self.raster.finish(shadow, fine, keep=True)
+        image = self.raster.finish(shadow, fine, keep=True, color=self._terrain_color)
         if shadow is not None:
             shadow.clear()
         return image
+
+    def _supersample(self, terrain, cam: CameraSpec, ss: int):
+        """The terrain's colours [height, width] (f32 vec3, 0-255) averaged over ss x ss samples a
+        pixel, drawn in strips of ``STRIP_ROWS`` image rows (a strip's projection is the image's
+        with its rows stretched and shifted into the strip)."""
+        from .raster import TaichiRasterizer
+
+        color = ti.Vector.field(3, ti.f32, (self.height, self.width))
+        rows = min(self.STRIP_ROWS, self.height)
+        strip = TaichiRasterizer(ss * self.width, ss * rows)
+        mvp = projection_matrix(cam, self.aspect) @ view_matrix(cam)
+        for row0 in range(0, self.height, rows):
+            # Image row r has ndc y = 1 - 2 r / H; in the strip it is row r - row0 of ``rows``.
+            to_strip = np.eye(4)
+            to_strip[1, 1] = self.height / rows
+            to_strip[1, 3] = 1.0 - (self.height - 2.0 * row0) / rows
+            strip.begin_matrix(to_strip @ mvp, BACKGROUND)
+            for m in terrain:
+                strip.draw(m.vertices, m.indices, m.colors, cull=m.closed)
+            strip.downsample_into(color, row0, ss)
+        return color
 
     def close(self):
         pass

@@ -6,10 +6,16 @@ bodies' bounding box, keeping only the triangles that face *away* from the light
 "front"``): the map holds the casters' far sides. A lit surface of a body is then always a body's
 thickness in front of what the map holds (no acne without a large bias), and the terrain is not
 in the map at all (it never shadows itself, so it cannot have acne); the bias only has to cover
-the map's own sampling, ``BIAS_TEXELS`` texels' worth of depth. At a contact the far side meets
+the map's own sampling. At a contact the far side meets
 the terrain, so the shadow reaches the contact up to that bias (a few centimetres on the default
 10 m cube: no gap on screen). ``raster._lit`` reads the map with 2 x 2 percentage-closer
 filtering, which antialiases the shadow's edge.
+
+A body's triangles turned away from the light are in its own shadow by geometry: the rasterizer
+draws them without the key light's share (``draw(..., light=)``) and they skip the map, where
+they are themselves at a depth too steep to compare (the stripes, acne, a bias cannot remove on
+faces nearly edge-on to the light). Their smooth vertex normals would otherwise still give them
+key light near an edge; now a cube's far faces are dark, as a real cube's are.
 
 Per frame only the pixels where a shadow can be are looked up (``rect``): the screen box of the
 bodies' bounding box and of its corners pushed away from the light until they pass the terrain.
@@ -26,7 +32,7 @@ import numpy as np
 from .camera import CameraSpec, project, projection_matrix, view_matrix
 
 MAP_SIZE = 512  # shadow map texels a side; the default cube's bounding sphere: ~3 cm a texel
-BIAS_TEXELS = 2.0  # depth bias [texels of the map at the casters' far side]
+BIAS_TEXELS = 1.5  # depth bias, towards the light [texels of the map at the casters' far side]
 MARGIN = 1.1  # the light's view reaches this much beyond the casters' bounding sphere
 
 
@@ -82,7 +88,7 @@ def shadow_reach(corners, light, kind: str, params: dict) -> np.ndarray:
 
 class ShadowPass:
     """The key light's shadow map for one frame (``prepare``) and what ``raster.finish`` needs to
-    read it: ``matrix``, ``bias`` [m], ``rect``; ``raster``, the map's rasterizer."""
+    read it: ``matrix``, ``bias`` and ``body_bias`` [m], ``rect``; ``raster``, the map's rasterizer."""
 
     def __init__(self, size: int = MAP_SIZE):
         from .raster import TaichiRasterizer
@@ -90,7 +96,7 @@ class ShadowPass:
         self.size = int(size)
         self.raster = TaichiRasterizer(self.size, self.size)
         self.matrix = np.zeros((3, 4), np.float32)
-        self.bias = 0.0
+        self.bias = self.body_bias = 0.0
         self.rect = np.zeros(4, np.int32)
         self.drawn = False
 
@@ -110,7 +116,7 @@ class ShadowPass:
         light_cam = CameraSpec(tuple(key_light), tuple(center), up, math.degrees(2 * half))
         self.matrix = pixel_to_light(cam, width, height, light_cam, self.size).astype(np.float32)
         texel = 2 * (dist + radius) * math.tan(half) / self.size  # [m] at the casters' far side
-        self.bias = BIAS_TEXELS * texel
+        self.bias = self.body_bias = BIAS_TEXELS * texel
         corners = _box_corners(lo, hi)
         reach = shadow_reach(corners, key_light, kind, params)
         if reach is None:
