@@ -460,6 +460,7 @@ def test_obj_writer(tmp_path):
     (["--video", "x.mp4", "--resolution", "97x64"], "even"),
     (["--resolution", "12x9000"], "WIDTHxHEIGHT"),
     (["--frames", "main.py"], "not a directory"),
+    (["--video", "x.mp4", "--quality", "ultra"], "low', 'medium', 'high"),
 ])
 def test_bad_render_flags_exit_2(args, word, tmp_path):
     (tmp_path / "main.py").write_text("")
