@@ -320,6 +320,15 @@ class Renderer:
         self.window.destroy()
 
 
+class _TerrainImage:
+    """A view's terrain as a ``TaichiRenderer`` last drew it: keys (depth, colour, key-light share)
+    in ``raster``, supersampled colours in ``color`` (or None), ``drawn`` = (terrain_version,
+    camera) it was drawn for."""
+
+    def __init__(self, view, raster):
+        self.view, self.raster, self.color, self.drawn = view, raster, None, None
+
+
 class TaichiRenderer:
     """The offscreen renderer without Vulkan: ``raster.TaichiRasterizer`` draws the views' lit
     meshes in Taichi kernels (the CPU path; see ``choose_renderer``). Same ``render`` as
@@ -338,16 +347,13 @@ class TaichiRenderer:
 
     def __init__(self, width: int, height: int, quality: str = "high"):
         from .choose import check_quality
-        from .raster import TaichiRasterizer
         from .shadows import BodyPass, ShadowPass
 
         self.width, self.height = int(width), int(height)
         self.quality = check_quality(quality)
-        self.raster = TaichiRasterizer(self.width, self.height)
+        self._terrains = {}  # id(view) -> _TerrainImage: each view's terrain image, kept
         self.shadow = ShadowPass() if self.quality in ("medium", "high") else None
         self.bodies = BodyPass(self.width, self.height, 2 if self.quality == "high" else 1)
-        self._terrain_drawn = None  # (view, its terrain_version, camera) whose terrain image self.raster holds
-        self._terrain_color = None  # the supersampled terrain's colours, when drawn
 
     @property
     def aspect(self) -> float:
@@ -393,29 +399,45 @@ class TaichiRenderer:
             for m in bodies:
                 fine.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share,
                                  light=None if shadow is None else rig.key_position)
-        drawn = (view, view.terrain_version, cam)
-        self.raster.begin(cam, BACKGROUND)
-        if self._terrain_drawn is None or drawn[0] is not self._terrain_drawn[0] or drawn[1:] != self._terrain_drawn[1:]:
-            self.raster.clear()
+        kept = self._terrain_image(view)
+        kept.raster.begin(cam, BACKGROUND)
+        if kept.drawn != (view.terrain_version, cam):
+            kept.raster.clear()
             terrain = [m for m in meshes if not m.body]
             for m in terrain:
-                self.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
-            self._terrain_color = self._supersample(terrain, cam, ss) if ss > 1 else None
-            self._terrain_drawn = drawn
-        image = self.raster.finish(shadow, fine, keep=True, color=self._terrain_color)
+                kept.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed, share=m.share)
+            kept.color = self._supersample(terrain, cam, ss, kept.color) if ss > 1 else None
+            kept.drawn = (view.terrain_version, cam)
+        image = kept.raster.finish(shadow, fine, keep=True, color=kept.color)
         if shadow is not None:
             shadow.clear()
         return image
 
-    def _supersample(self, terrain, cam: CameraSpec, ss: int):
-        """The terrain's colours [height, width] (f32 vec3, 0-255) averaged over ss x ss samples a
-        pixel, drawn in strips of ``STRIP_ROWS`` image rows (a strip's projection is the image's
-        with its rows stretched and shifted into the strip)."""
+    KEPT_VIEWS = 8  # terrain images kept (``compare`` draws one view per tile with one renderer)
+
+    def _terrain_image(self, view) -> "_TerrainImage":
+        """The terrain image kept for ``view`` (a new, undrawn one the first time)."""
         from .raster import TaichiRasterizer
 
-        color = ti.Vector.field(3, ti.f32, (self.height, self.width))
+        kept = self._terrains.get(id(view))
+        if kept is None or kept.view is not view:
+            if len(self._terrains) >= self.KEPT_VIEWS:
+                self._terrains.pop(next(iter(self._terrains)))
+            kept = self._terrains[id(view)] = _TerrainImage(view, TaichiRasterizer(self.width, self.height))
+        return kept
+
+    def _supersample(self, terrain, cam: CameraSpec, ss: int, color=None):
+        """The terrain's colours [height, width] (f32 vec3, 0-255) averaged over ss x ss samples a
+        pixel, into ``color`` (a new field if None), drawn in strips of ``STRIP_ROWS`` image rows
+        (a strip's projection is the image's with its rows stretched and shifted into the strip)."""
+        from .raster import TaichiRasterizer
+
+        if color is None:
+            color = ti.Vector.field(3, ti.f32, (self.height, self.width))
         rows = min(self.STRIP_ROWS, self.height)
-        strip = TaichiRasterizer(ss * self.width, ss * rows)
+        if getattr(self, "_strip", None) is None or self._strip.width != ss * self.width:
+            self._strip = TaichiRasterizer(ss * self.width, ss * rows)
+        strip = self._strip
         mvp = projection_matrix(cam, self.aspect) @ view_matrix(cam)
         for row0 in range(0, self.height, rows):
             # Image row r has ndc y = 1 - 2 r / H; in the strip it is row r - row0 of ``rows``.
