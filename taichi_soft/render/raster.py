@@ -39,6 +39,7 @@ vec2f = ti.types.vector(2, ti.f32)
 vec3f = ti.types.vector(3, ti.f32)
 ivec4 = ti.types.vector(4, ti.i32)
 SHARE_SHIFT = 24  # bits 24-31 of a key: the key light's share of the colour, 0-255
+TERMINATOR = 0.2  # cosine between a body triangle and the key light below which its shadow fades
 
 
 @ti.func
@@ -217,12 +218,19 @@ class TaichiRasterizer:
                     sh = ti.Vector([share[i0], share[i1], share[i2]]) * 255.0
                     if self_shadow != 0:
                         p0 = verts[i0]
-                        normal = (verts[i1] - p0).cross(verts[i2] - p0)
-                        if normal.dot(light - p0) <= 0.0:  # turned away from the light: in its own shadow
+                        facing = (verts[i1] - p0).cross(verts[i2] - p0).normalized(1e-20).dot(
+                            (light - p0).normalized(1e-20))
+                        # Within TERMINATOR of grazing the map is unreliable (its depth changes by
+                        # many texels' worth across one texel): on either side the shadow's effect
+                        # fades to nothing at facing = 0, so a curved body shows no seam of facets.
+                        trust = ti.min(ti.abs(facing) / TERMINATOR, 1.0)
+                        if facing <= 0.0:  # turned away from the light: in its own shadow
                             for k in ti.static(range(3)):
                                 for ch in ti.static(range(3)):
-                                    rgb[ch, k] *= 1.0 - sh[k] / 255.0
+                                    rgb[ch, k] *= 1.0 - trust * sh[k] / 255.0
                             sh = ti.Vector([0.0, 0.0, 0.0], dt=ti.f32)
+                        else:
+                            sh *= trust
                 dx = ti.Vector([inv[0, 0], inv[1, 0], inv[2, 0]])  # d b / d column
                 for row in range(r0, r1 + 1):
                     b0 = inv @ ti.Vector([0.5, row + 0.5, 1.0], dt=ti.f32)  # b at column 0
