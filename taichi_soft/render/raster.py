@@ -12,7 +12,11 @@ two passes over one 64-bit field:
    ``(depth bits << 32) | RGB`` with an atomic min. The key is the depth test, the colour and
    the tie-break in one: the image does not depend on thread order.
 2. ``_resolve``, one task per row: unpack the colours (background where nothing was drawn),
-   uint8 RGB, top row first, and reset the keys for the next frame.
+   uint8 RGB, top row first, and reset the keys for the next frame. Given a shadow map
+   (``shadows.ShadowPass``, drawn by this same class from the key light) it darkens the pixels
+   the map hides by the key light's share of their colour, kept in the key's bits 24-31; given
+   the bodies drawn apart at ``factor`` x ``factor`` samples a pixel (``shadows.BodyPass``) it
+   composites and averages them over this image (the terrain), which may be kept across frames.
 
 Triangles are set up in homogeneous coordinates (Olano and Greer, "Triangle scan conversion
 using 2D homogeneous coordinates", 1997): with the corners' (x_pixel w, y_pixel w, w) as the
