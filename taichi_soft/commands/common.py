@@ -116,7 +116,8 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True, pipeline=True)
     """Flags for offscreen rendering (docs/rendering.md); ``pipeline``: offer --pipeline (run only)."""
     from ..render.export import MESH_FORMATS
 
-    from ..render.choose import DEFAULT_QUALITY, QUALITIES, RENDERERS
+    from ..render.choose import RENDERERS
+    from ..render.quality import DEFAULT_QUALITY, QUALITIES
     from ..render.pipeline import PIPELINES
 
     g = p.add_argument_group("rendering (offscreen: GGUI on a Vulkan GPU, else Taichi kernels on the CPU)")

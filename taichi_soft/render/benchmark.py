@@ -83,7 +83,7 @@ def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
         stages["read-back alone (empty frame)"] = empty_readback
         stages["conversion to uint8"] = lambda: float_image_to_rgb8(buf, rgb)
     else:
-        from .choose import QUALITIES
+        from .quality import QUALITIES
         from .renderer import TaichiRenderer
 
         # Each quality by its own renderer, timed in the same rounds (terrain kept while the camera

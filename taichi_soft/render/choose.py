@@ -11,20 +11,9 @@ Nothing here imports Taichi at module level: the CLI validates the choice before
 from __future__ import annotations
 
 from ..errors import UserError
+from .quality import DEFAULT_QUALITY, check_quality
 
 RENDERERS = ("auto", "ggui", "taichi")
-# The Taichi rasterizer's look (renderer.TaichiRenderer): low = what GGUI draws, medium = + the
-# key light's shadows, high = + the bodies' edges with 2 x 2 samples a pixel. The default is
-# chosen by measurement (docs/rendering.md, "Shadows and anti-aliasing").
-QUALITIES = ("low", "medium", "high")
-DEFAULT_QUALITY = "high"
-
-
-def check_quality(quality: str) -> str:
-    """``quality`` if it is one of ``QUALITIES``, else ``UserError`` naming them."""
-    if quality not in QUALITIES:
-        raise UserError(f"unknown quality {quality!r}; choose one of: {', '.join(QUALITIES)}")
-    return quality
 
 
 def choose_renderer(kind: str = "auto", needs_ggui: bool = False) -> str:

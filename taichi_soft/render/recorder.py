@@ -34,7 +34,7 @@ class RenderOptions:
     follow: bool | None = None  # None: the terrain's default
     overlay: bool = True
     renderer: str = "auto"  # "auto", "ggui" or "taichi" (render.choose)
-    quality: str = "high"  # the taichi renderer's look: render.choose.QUALITIES
+    quality: str = "high"  # the taichi renderer's look: render.quality.QUALITIES
     pipeline: str = "serial"  # "serial" or "overlap" (render.pipeline): where the frames are drawn
 
     @property

@@ -334,7 +334,7 @@ class TaichiRenderer:
     meshes in Taichi kernels (the CPU path; see ``choose_renderer``). Same ``render`` as
     ``Renderer``; surfaces and terrain only (particles and springs need GGUI).
 
-    ``quality`` (``choose.QUALITIES``): ``low`` draws what GGUI draws (the checker filtered for its
+    ``quality`` (``quality.QUALITIES``): ``low`` draws what GGUI draws (the checker filtered for its
     footprint, no shadows, one sample a pixel); ``medium`` adds the bodies' shadows from the key
     light (``shadows.py``); ``high`` also draws the bodies with 2 x 2 samples a pixel, which
     antialiases their silhouettes, and, seen by a fixed camera, the terrain with ``TERRAIN_SAMPLES``
@@ -346,7 +346,7 @@ class TaichiRenderer:
     STRIP_ROWS = 64  # image rows drawn at a time when supersampling the terrain (bounds its memory)
 
     def __init__(self, width: int, height: int, quality: str = "high"):
-        from .choose import check_quality
+        from .quality import check_quality
         from .shadows import BodyPass, ShadowPass
 
         self.width, self.height = int(width), int(height)
