@@ -224,7 +224,8 @@ def test_fast_paths_match_the_per_pixel_reference(renderer, name):
     shadow volume, and leave every other pixel as it was; ``high`` (supersampled too) still shows
     the bodies and the terrain where they are.
     """
-    from taichi_soft.render.renderer import SimulationView, TaichiRenderer
+    from taichi_soft.render.renderer import SimulationView
+    from taichi_soft.render.taichi_renderer import TaichiRenderer
     from taichi_soft.sim.simulation import Simulation
 
     sim = Simulation(small_scene(name))

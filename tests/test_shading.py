@@ -32,6 +32,11 @@ def plane_hits(cam, width, height, y0: float) -> np.ndarray:
     return eye + t[..., None] * d
 
 
+def cross2(a, b) -> float:
+    """z of the cross product of two 2D vectors."""
+    return a[0] * b[1] - a[1] * b[0]
+
+
 def convex_hull(points: np.ndarray) -> np.ndarray:
     """Counter-clockwise hull of 2D points (monotone chain)."""
     pts = sorted(map(tuple, points))
@@ -39,7 +44,7 @@ def convex_hull(points: np.ndarray) -> np.ndarray:
     def half(seq):
         out = []
         for p in seq:
-            while len(out) >= 2 and np.cross(np.subtract(out[-1], out[-2]), np.subtract(p, out[-2])) <= 0:
+            while len(out) >= 2 and cross2(np.subtract(out[-1], out[-2]), np.subtract(p, out[-2])) <= 0:
                 out.pop()
             out.append(p)
         return out[:-1]
@@ -86,7 +91,8 @@ def resting_cube(lift: float, camera=TOP_VIEW):
 def shadow_frames(sim):
     """(frame with shadows, frame without, pixels of the cube, camera) at W x H."""
     from taichi_soft.render.camera import scene_camera
-    from taichi_soft.render.renderer import SimulationView, TaichiRenderer
+    from taichi_soft.render.renderer import SimulationView
+    from taichi_soft.render.taichi_renderer import TaichiRenderer
 
     view = SimulationView(sim)
     cam = scene_camera(sim.scene.data, W / H)
@@ -208,7 +214,8 @@ def grazing_frames():
     fixed camera, so ``high`` supersamples the terrain)."""
     from taichi_soft.render.lighting import light_rig
     from taichi_soft.render.raster import TaichiRasterizer
-    from taichi_soft.render.renderer import BACKGROUND, SimulationView, TaichiRenderer
+    from taichi_soft.render.renderer import BACKGROUND, SimulationView
+    from taichi_soft.render.taichi_renderer import TaichiRenderer
     from taichi_soft.sim.integrators import names
     from taichi_soft.sim.scene import load_scene
     from taichi_soft.sim.simulation import Simulation
@@ -295,7 +302,8 @@ def test_high_quality_bodies_match_a_supersampled_reference_on_their_edges():
     size, averaged) than the one-sample frame is, by at least a third of its RMS error there
     (2 x 2 samples halve the coverage error of an edge pixel at worst: 1/2 -> 1/4 of a step)."""
     from taichi_soft.render.camera import scene_camera
-    from taichi_soft.render.renderer import SimulationView, TaichiRenderer
+    from taichi_soft.render.renderer import SimulationView
+    from taichi_soft.render.taichi_renderer import TaichiRenderer
 
     sim = resting_cube(0.0)
     view = SimulationView(sim)

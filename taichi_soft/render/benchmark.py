@@ -84,7 +84,7 @@ def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
         stages["conversion to uint8"] = lambda: float_image_to_rgb8(buf, rgb)
     else:
         from .quality import QUALITIES
-        from .renderer import TaichiRenderer
+        from .taichi_renderer import TaichiRenderer
 
         # Each quality by its own renderer, timed in the same rounds (terrain kept while the camera
         # holds, as in a run with a fixed camera).
@@ -162,7 +162,8 @@ def main(argv=None) -> int:
     from ..sim.simulation import Simulation
     from . import overlay
     from .camera import scene_camera
-    from .renderer import Renderer, SimulationView, TaichiRenderer
+    from .renderer import Renderer, SimulationView
+    from .taichi_renderer import TaichiRenderer
 
     p = argparse.ArgumentParser(prog="python -m taichi_soft.render.benchmark", description=__doc__.splitlines()[0])
     p.add_argument("--scene", default="plane", help="comma-separated scene names (default: plane)")

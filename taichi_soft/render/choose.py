@@ -2,7 +2,7 @@
 
 ``ggui``: a hidden GGUI window through Vulkan (``renderer.Renderer``): everything (surfaces,
 terrain, particles, springs), fast on a GPU, ~3x slower than ``taichi`` on Mesa's lavapipe.
-``taichi``: Taichi kernels on the CPU (``renderer.TaichiRenderer``, ``raster.py``): surfaces and
+``taichi``: Taichi kernels on the CPU (``taichi_renderer.TaichiRenderer``, ``raster.py``): surfaces and
 terrain, no Vulkan needed. ``auto``: ggui where Vulkan offers a GPU or the frame needs particles
 or springs, else taichi. Both draw the same lit vertex colours (docs/rendering.md).
 
@@ -36,7 +36,8 @@ def make_renderer(width: int, height: int, kind: str = "auto", needs_ggui: bool 
     """The renderer ``choose_renderer`` picks, ``width`` x ``height`` pixels (Taichi initialised);
     ``quality`` shapes the Taichi rasterizer's frames (GGUI draws no shadows and one sample a pixel).
     A GGUI one without a usable Vulkan device raises ``NoVulkanDevice`` (one line)."""
-    from .renderer import Renderer, TaichiRenderer
+    from .renderer import Renderer
+    from .taichi_renderer import TaichiRenderer
 
     check_quality(quality)
     if choose_renderer(kind, needs_ggui) == "ggui":

@@ -1,4 +1,4 @@
-"""The Taichi rasterizer's look, ``--quality`` (``renderer.TaichiRenderer``; GGUI ignores it).
+"""The Taichi rasterizer's look, ``--quality`` (``taichi_renderer.TaichiRenderer``; GGUI ignores it).
 
 ``low``: what GGUI draws (the checker filtered for its footprint, one sample a pixel, no
 shadows); ``medium``: + the bodies' shadows from the key light; ``high``: + the bodies' edges with
