@@ -55,7 +55,7 @@ def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
 
     image = renderer.render(view, cam)
     lines = info.lines(sim.time, sim.measure()["total_energy"])
-    stages = {"update + lighting": lambda: (view.update(), view.light(light_rig(cam)))}
+    stages = {"update + lighting": lambda: (view.update(), view.light(light_rig(cam), (cam, width, height)))}
     if kind == "ggui":
         def draw():
             apply_camera(renderer.scene, renderer.camera, cam)
