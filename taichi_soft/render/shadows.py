@@ -6,20 +6,22 @@ bodies' bounding box, keeping only the triangles that face *away* from the light
 "front"``): the map holds the casters' far sides. A lit surface of a body is then always a body's
 thickness in front of what the map holds (no acne without a large bias), and the terrain is not
 in the map at all (it never shadows itself, so it cannot have acne); the bias only has to cover
-the map's own sampling. At a contact the far side meets
-the terrain, so the shadow reaches the contact up to that bias (a few centimetres on the default
-10 m cube: no gap on screen). ``raster._lit`` reads the map with 2 x 2 percentage-closer
+the map's own sampling. At a contact the far side meets the terrain, so the shadow reaches the
+contact up to that bias (2.5 cm on the default 4 m cube: no gap on screen). ``raster._lit`` reads the map with 2 x 2 percentage-closer
 filtering, which antialiases the shadow's edge.
 
 A body's triangles turned away from the light are in its own shadow by geometry: the rasterizer
 draws them without the key light's share (``draw(..., light=)``) and they skip the map, where
 they are themselves at a depth too steep to compare (the stripes, acne, a bias cannot remove on
 faces nearly edge-on to the light). Their smooth vertex normals would otherwise still give them
-key light near an edge; now a cube's far faces are dark, as a real cube's are.
+key light near an edge; this way a cube's far faces are dark, as a real cube's are. Within a
+cosine of ``raster.TERMINATOR`` of grazing, on either side, the shadow's effect fades to nothing,
+so a curved body's terminator shows neither the map's texels nor its own facets.
 
 Per frame only the pixels where a shadow can be are looked up (``rect``): the screen box of the
 bodies' bounding box and of its corners pushed away from the light until they pass the terrain.
-The bodies' own pass (``BodyPass``, 2 x 2 samples a pixel at high quality) likewise touches only the bodies' screen box.
+The bodies' own pass (``BodyPass``, 2 x 2 samples a pixel at high quality) likewise touches
+only the bodies' screen box.
 
 Pure numpy apart from the rasterizers it owns.
 """
@@ -31,7 +33,7 @@ import numpy as np
 
 from .camera import CameraSpec, project, projection_matrix, view_matrix
 
-MAP_SIZE = 512  # shadow map texels a side; the default cube's bounding sphere: ~3 cm a texel
+MAP_SIZE = 512  # shadow map texels a side; around the default 4 m cube: 1.7 cm a texel
 BIAS_TEXELS = 1.5  # depth bias, towards the light [texels of the map at the casters' far side]
 MARGIN = 1.1  # the light's view reaches this much beyond the casters' bounding sphere
 
