@@ -284,6 +284,24 @@ def check_start(sim: Simulation):
         if depth > 0:
             raise UserError(f"body.{b} starts {depth:.3g} m inside the terrain ({sim.terrain.kind}); "
                             f"move it out (body.{b}.center)")
+    check_terrain_crossing(sim, d)
+    x0 = sim.model.x0_np
+    bodies = sim.model.bodies
+    for b, body in enumerate(bodies):
+        for a in range(b):
+            ra, rb = body_radius(bodies[a].spec), body_radius(body.spec)
+            if bodies[a].mesh is not None or body.mesh is not None:
+                depth = particle_overlap(x0[bodies[a].particles], x0[body.particles], ra + rb)
+            else:
+                depth = overlap_depth(bodies[a].spec, x0[body.particles], ra, rb)
+            if depth > 0:
+                raise UserError(f"body.{b} starts {depth:.3g} m inside body.{a} (particles of different bodies "
+                                f"must start at least their contact distance apart); move them apart (body.{b}.center)")
+
+
+def check_terrain_crossing(sim: Simulation, d: np.ndarray):
+    """Refuse (``UserError``) a body whose springs the terrain's surface passes through at the start
+    (``d``: the particles' signed distances [m]): it straddles the surface with no particle inside."""
     # A spring the surface crosses has both ends within its length of the surface; a lattice spring
     # is at most a body diagonal of two cells, 2 sqrt(3) spacings (= 4 sqrt(3) contact radii).
     reach = np.zeros(len(d))
@@ -301,18 +319,6 @@ def check_start(sim: Simulation):
         if count:
             raise UserError(f"body.{b} starts cut by the terrain's surface ({sim.terrain.kind}: it passes "
                             f"through {count} of the body's springs); move it clear (body.{b}.center)")
-    x0 = sim.model.x0_np
-    bodies = sim.model.bodies
-    for b, body in enumerate(bodies):
-        for a in range(b):
-            ra, rb = body_radius(bodies[a].spec), body_radius(body.spec)
-            if bodies[a].mesh is not None or body.mesh is not None:
-                depth = particle_overlap(x0[bodies[a].particles], x0[body.particles], ra + rb)
-            else:
-                depth = overlap_depth(bodies[a].spec, x0[body.particles], ra, rb)
-            if depth > 0:
-                raise UserError(f"body.{b} starts {depth:.3g} m inside body.{a} (particles of different bodies "
-                                f"must start at least their contact distance apart); move them apart (body.{b}.center)")
 
 
 def overlap_depth(spec: BodySpec, points: np.ndarray, radius: float, point_radius: float) -> float:
