@@ -326,6 +326,21 @@ class Integrator:
             xn, vn = self.terrain.respond(i, xn, vn)
         x[i] = xn
         v[i] = vn
+        self._check_divergence(vn, step)
+
+    @ti.func
+    def _drift(self, i, x0, v, dt):
+        """Particle i's position after moving at velocity ``v`` [m/s] for ``dt`` [s] from ``x0`` [m],
+        and its velocity, after the terrain's response to that straight path
+        (``Terrain.respond_path``: at the end of the step, or at the crossing time)."""
+        xn = x0 + dt * v
+        if ti.static(self.terrain.has_contact):
+            xn, v = self.terrain.respond_path(i, x0, xn, v, dt)
+        return xn, v
+
+    @ti.func
+    def _check_divergence(self, vn, step):
+        """Record ``step`` as diverged if the velocity ``vn`` is non-finite or too fast."""
         speed2 = vn.dot(vn)  # NaN if any component is NaN, inf if any is infinite
         if _not_finite(speed2) or speed2 > self.speed2_limit[None]:
             ti.atomic_min(self.diverged_step[None], step)
