@@ -143,27 +143,41 @@ class Terrain:
         return x, v
 
     @ti.func
-    def respond_path(self, i, x0, x1, v, dt):
-        """``respond`` for a particle that moved in a straight line at velocity ``v`` [m/s] from
-        ``x0`` to ``x1`` [m] during a step of ``dt`` [s] (the drift of semi-implicit Euler and
-        velocity Verlet). With ``impact_at_crossing`` a particle that started outside and ends
-        inside is moved back to its crossing time (the signed distance interpolated linearly along
-        the path: exact for a plane), its velocity there answered with ``impact``, and advanced for
-        the rest of the step; then ``respond`` as at the end of any step (it projects what is
-        still inside). Without it, ``respond`` at ``x1``: the seed's end-of-step rule."""
+    def respond_path(self, i, x0, x1, v, a, dt):
+        """``respond`` for a particle that drifted from ``x0`` to ``x1`` = x0 + dt v [m] during a
+        step of ``dt`` [s]: ``v`` [m/s] is the mean velocity of the path, ``a`` [m/s^2] the
+        acceleration along it (its velocity at fraction s of the step is v + (s - 1/2) dt a:
+        velocity Verlet's drift; zero for semi-implicit Euler's constant-velocity drift).
+
+        Without ``impact_at_crossing``: ``respond`` at ``x1``, the seed's end-of-step rule. With
+        it, a particle is answered when it crosses the surface, not in the contact band above it:
+        one that starts outside and ends inside is moved back to its crossing (the signed distance
+        interpolated linearly along the path: exact for a plane), its velocity there answered with
+        ``impact``, and advanced for the rest of the step; then ``respond`` projects whatever is
+        still inside. Returns (x1, v) with v the path's mean velocity as above, after the impact
+        (so the method's last kick of dt/2 a ends at the velocity of the end of the step)."""
+        xo, vo = x1, v
         if self.impact_at_crossing[None] != 0:
             d1, _ = self.query(i, x1)
-            if d1 < 0:
+            if d1 >= 0:
+                self.post_step(i, x1)
+            else:
                 d0, _ = self.query(i, x0)
                 if d0 > 0:
                     s = d0 / (d0 - d1)  # the fraction of the step before the crossing
                     xc = x0 + s * (x1 - x0)
                     _, n = self.query(i, xc)
-                    vn = n.dot(v)
+                    vc = v + ((s - 0.5) * dt) * a
+                    vn = n.dot(vc)
                     if vn < 0:
-                        v = self.impact(v, n, vn)
-                    x1 = xc + ((1.0 - s) * dt) * v
-        return self.respond(i, x1, v)
+                        vc = self.impact(vc, n, vn)
+                    rest = (1.0 - s) * dt
+                    xo = xc + rest * (vc + (0.5 * rest) * a)
+                    vo = vc + ((0.5 - s) * dt) * a
+                xo, vo = self.respond(i, xo, vo)
+        else:
+            xo, vo = self.respond(i, x1, v)
+        return xo, vo
 
     @ti.func
     def impact(self, v, n, vn):

@@ -329,13 +329,14 @@ class Integrator:
         self._check_divergence(vn, step)
 
     @ti.func
-    def _drift(self, i, x0, v, dt):
-        """Particle i's position after moving at velocity ``v`` [m/s] for ``dt`` [s] from ``x0`` [m],
-        and its velocity, after the terrain's response to that straight path
-        (``Terrain.respond_path``: at the end of the step, or at the crossing time)."""
+    def _drift(self, i, x0, v, a, dt):
+        """Particle i's position [m] after drifting for ``dt`` [s] from ``x0`` at the mean velocity
+        ``v`` [m/s] (acceleration ``a`` [m/s^2] along the path, zero for a constant velocity), and
+        that velocity after the terrain's response to the path (``Terrain.respond_path``: at the
+        end of the step, or at the crossing time)."""
         xn = x0 + dt * v
         if ti.static(self.terrain.has_contact):
-            xn, v = self.terrain.respond_path(i, x0, xn, v, dt)
+            xn, v = self.terrain.respond_path(i, x0, xn, v, a, dt)
         return xn, v
 
     @ti.func

@@ -176,7 +176,7 @@ class SemiImplicitEuler(Integrator):
         self.forces.spring_pass(x, v)
         for i in range(self.n):
             vn = v[i] + dt * self.forces.accel(x, v, i, dt)
-            xn, vn = self._drift(i, x[i], vn, dt)
+            xn, vn = self._drift(i, x[i], vn, ti.Vector.zero(float, 3), dt)
             xo[i] = xn
             vo[i] = vn
             self._check_divergence(vn, step)
@@ -249,7 +249,7 @@ class VelocityVerlet(Integrator):
         half = 0.5 * dt
         for i in range(self.n):
             a = self.accel[i]
-            xn, vh = self._drift(i, x[i], v[i] + half * a, dt)
+            xn, vh = self._drift(i, x[i], v[i] + half * a, a, dt)
             x[i] = xn
             v[i] = vh
             self.v_pred[i] = vh + half * a
