@@ -107,3 +107,19 @@ def test_impact_at_the_crossing_time_keeps_a_resting_particle_on_the_plane():
         assert done == 1500
         assert np.abs(x[:, 1] + 1.0).max() < 1e-9, name
         np.testing.assert_allclose(x[:, 0], model.x0_np[:, 0] + 0.5 * 1.5, atol=1e-9)
+
+
+def test_fitted_order_on_the_benchmarks_smooth_case():
+    """The work-precision study's smooth case (the free-floating cube, against its RK4 reference):
+    velocity Verlet's fitted order is 2, semi-implicit Euler's 1, and at the same step (the same
+    work, one force evaluation per step) velocity Verlet's error is the smaller one."""
+    from taichi_soft.bench import accuracy
+
+    dts = [1e-3, 5e-4, 2.5e-4]
+    ref, dt_ref = accuracy.reference("smooth", min(dts), frames=2)
+    rows = {name: accuracy.measure_integrator("smooth", name, dts, ref, dt_ref, frames=2, repeats=1)
+            for name in ("velocity_verlet", "semi_implicit_euler")}
+    assert accuracy.fitted_order(rows["velocity_verlet"], "velocity_verlet") >= 1.9
+    assert accuracy.fitted_order(rows["semi_implicit_euler"], "semi_implicit_euler") < 1.2
+    for vv, sie in zip(rows["velocity_verlet"], rows["semi_implicit_euler"]):
+        assert vv["force_evals"] == sie["force_evals"] and vv["error_final"] < sie["error_final"]
