@@ -94,18 +94,21 @@ def test_impact_at_the_crossing_time_gives_the_analytic_bounce_at_second_order()
         assert end > 0.1 * G * dt, (dt, end)  # first order (the contact band here is 1e-12 m: not the cause)
 
 
-def test_impact_at_the_crossing_time_keeps_a_resting_particle_on_the_plane():
-    """kr = 0: a particle crossing the plane stops its normal velocity at the crossing and slides on;
-    the rest of the step leaves it on the surface (not below it)."""
+def test_impact_at_the_crossing_time_keeps_a_stopped_particle_in_the_contact_band():
+    """kr = 0: a particle entering the contact band stops its normal velocity there and slides on;
+    it stays in the band (above the plane, below epsilon), with no normal velocity."""
     zero = (0.0, 0.0)
+    eps = 0.01
     model, terrain = build(n=2, size=1.0, gravity=(0.0, -G, 0.0), terrain="plane",
                            geometry={"point": [0.0, -1.0, 0.0], "normal": [0.0, 1.0, 0.0]},
-                           contact={"restitution": 0.0, "friction": 0.0, "impact_at_crossing": True},
+                           contact={"restitution": 0.0, "friction": 0.0, "epsilon": eps, "impact_at_crossing": True},
                            center=(0.0, 0.0, 0.0), velocity=(0.5, 0.0, 0.0), stretch=zero, shear=zero, bend=zero)
     for name in ("velocity_verlet", "semi_implicit_euler"):
         x, v, done = simulate(model, terrain, name, 1e-3, 1500)
         assert done == 1500
-        assert np.abs(x[:, 1] + 1.0).max() < 1e-9, name
+        height = x[:, 1] + 1.0
+        assert (height >= 0).all() and (height <= eps + 1e-9).all(), (name, height)
+        assert np.abs(v[:, 1]).max() < 1e-9, name
         np.testing.assert_allclose(x[:, 0], model.x0_np[:, 0] + 0.5 * 1.5, atol=1e-9)
 
 

@@ -149,22 +149,24 @@ class Terrain:
         acceleration along it (its velocity at fraction s of the step is v + (s - 1/2) dt a:
         velocity Verlet's drift; zero for semi-implicit Euler's constant-velocity drift).
 
-        Without ``impact_at_crossing``: ``respond`` at ``x1``, the seed's end-of-step rule. With
-        it, a particle is answered when it crosses the surface, not in the contact band above it:
-        one that starts outside and ends inside is moved back to its crossing (the signed distance
-        interpolated linearly along the path: exact for a plane), its velocity there answered with
-        ``impact``, and advanced for the rest of the step; then ``respond`` projects whatever is
-        still inside. Returns (x1, v) with v the path's mean velocity as above, after the impact
-        (so the method's last kick of dt/2 a ends at the velocity of the end of the step)."""
+        Without ``impact_at_crossing``: ``respond`` at ``x1``, the seed's end-of-step rule: an
+        approach is answered wherever the step's end finds the particle in the contact band
+        (d < epsilon) or inside. With it, when the approach happened: a particle that starts
+        outside the band and ends in it (or inside) is moved back to where its path enters the band
+        (the signed distance interpolated linearly along the path: exact for a plane), its velocity
+        there answered with ``impact``, and advanced for the rest of the step. The same model at a
+        finer time: both rules converge to one answer as dt -> 0. Then ``respond`` as always (it
+        projects whatever is still inside, and answers a particle that started in the band).
+        Returns (x1, v) with v the path's mean velocity as above, after the impact (so the method's
+        last kick of dt/2 a ends at the velocity of the end of the step)."""
         xo, vo = x1, v
         if self.impact_at_crossing[None] != 0:
+            eps = self.epsilon[None]
             d1, _ = self.query(i, x1)
-            if d1 >= 0:
-                self.post_step(i, x1)
-            else:
+            if d1 < eps:
                 d0, _ = self.query(i, x0)
-                if d0 > 0:
-                    s = d0 / (d0 - d1)  # the fraction of the step before the crossing
+                if d0 > eps:
+                    s = (d0 - eps) / (d0 - d1)  # the fraction of the step before the band's edge
                     xc = x0 + s * (x1 - x0)
                     _, n = self.query(i, xc)
                     vc = v + ((s - 0.5) * dt) * a
@@ -174,7 +176,7 @@ class Terrain:
                     rest = (1.0 - s) * dt
                     xo = xc + rest * (vc + (0.5 * rest) * a)
                     vo = vc + ((0.5 - s) * dt) * a
-                xo, vo = self.respond(i, xo, vo)
+            xo, vo = self.respond(i, xo, vo)
         else:
             xo, vo = self.respond(i, x1, v)
         return xo, vo
