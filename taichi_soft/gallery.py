@@ -265,14 +265,19 @@ svg.energy line.div { stroke: #b00; stroke-dasharray: 3 2; }
 svg.energy text { font-size: 9px; fill: #666; }
 """
 
-# Says so in a cell when this browser cannot play a video (no codec, missing file).
+# Says so in a cell when this browser cannot play a video (no codec, missing file). A video may have
+# failed before this script runs (the parser can yield to the failed load first): check, then listen.
 SCRIPT = """
 document.querySelectorAll("video").forEach(function (v) {
-  v.addEventListener("error", function () {
+  function say() {
+    if (v.dataset.failed) return;
+    v.dataset.failed = "1";
     var p = document.createElement("p"); p.className = "failed";
     p.textContent = "this browser could not load " + v.getAttribute("src");
     v.parentNode.insertBefore(p, v.nextSibling);
-  }, true);
+  }
+  v.addEventListener("error", say, true);
+  if (v.error) say();
 });
 """
 

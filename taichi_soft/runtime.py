@@ -143,6 +143,20 @@ def init(arch: str = "cpu", precision: str = "f64", fast_math: bool = False, opt
     return dict(_current)
 
 
+@contextlib.contextmanager
+def ir_passes(on: bool):
+    """Kernels compiled inside run Taichi's IR optimisation passes only if ``on`` and the runtime
+    runs them (``init``'s ``optimize``). The offline cache keys kernels by this option, so a kernel
+    compiled either way is found again only the same way."""
+    cfg = ti.lang.impl.current_cfg()
+    before = cfg.advanced_optimization
+    cfg.advanced_optimization = before and on
+    try:
+        yield
+    finally:
+        cfg.advanced_optimization = before
+
+
 def current() -> dict | None:
     """The backend, precision and fast-math setting of the running Taichi, or None before ``init``."""
     return None if _current is None else dict(_current)

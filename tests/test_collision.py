@@ -104,12 +104,36 @@ def test_contact_radius_is_half_the_spacing(make_sim):
 @pytest.mark.parametrize("sets,message", [
     (["body.0.center=[0,-5,0]"], "m inside the terrain (plane)"),
     (["--scene", "three_cubes", "body.1.center=[-4,6,0]"], "body.1 starts 1.74 m inside body.0"),
+    # Half of a 2 m cube below the bowl's shell: every particle is clear of the shell on its own side.
+    (["--scene", "bowl", "terrain.center=[0,7,0]", "body.0.center=[0,0,0]", "body.0.size=2"],
+     "body.0 starts cut by the terrain's surface (bowl"),
+    # A small ball pokes into the cube's top face between four particles (0.71 m from the nearest).
+    (["--scene", "sphere", "terrain.center=[0,1.5,0]", "terrain.radius=0.4", "body.0.n=4", "body.0.size=3",
+      "body.0.center=[0,0,0]", "body.0.rotation.degrees=0"], "body.0 starts cut by the terrain's surface (sphere"),
 ])
 def test_start_inside_terrain_or_another_body_is_refused(cli, tmp_path, sets, message):
     args = ["run", "--duration", "0.01", "--summary", tmp_path / "s.json"]
     for s in sets:
-        args += [s] if s.startswith("--") or s == "three_cubes" else ["--set", s]
+        args += [s] if s.startswith("--") or s in ("three_cubes", "bowl", "sphere") else ["--set", s]
     r = cli(*args)
     assert r.returncode == 2, r.stderr
     assert message in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "s.json").exists()
+
+
+def test_a_terrain_surface_crossing_a_segment_is_found_on_each_kind():
+    """Segments through, beside and ending on each surface, against the geometry worked by hand."""
+    from taichi_soft.sim.terrain import make_terrain
+
+    a = np.array([[0.0, -2.0, 0.0], [3.0, -2.0, 0.0], [0.0, -9.0, 0.0], [0.0, 1.0, 0.0]])
+    b = np.array([[0.0, 2.0, 0.0], [3.0, 2.0, 0.0], [0.0, -5.0, 0.0], [0.0, 0.5, 0.0]])
+    plane = make_terrain("plane", 4, {"point": [0.0, 0.0, 0.0], "normal": [0.0, 2.0, 0.0]})
+    assert plane.crossed(a, b).tolist() == [True, True, False, False]
+    ball = make_terrain("sphere", 4, {"center": [0.0, 0.0, 0.0], "radius": 1.0})
+    # through the ball; 3 m beside it; wholly below it; ending inside it (a particle inside: crossed too)
+    assert ball.crossed(a, b).tolist() == [True, False, False, True]
+    bowl = make_terrain("bowl", 4, {"center": [0.0, 0.0, 0.0], "radius": 7.0})
+    # inside the shell; inside; across the bottom of the shell (y = -7); above the rim plane
+    assert bowl.crossed(a, b).tolist() == [False, False, True, False]
+    assert bowl.crossed(np.array([[6.5, 1.0, 0.0]]), np.array([[7.5, 1.0, 0.0]])).tolist() == [False]  # open top
+    assert bowl.crossed(np.array([[6.5, -1.0, 0.0]]), np.array([[7.5, -1.0, 0.0]])).tolist() == [True]

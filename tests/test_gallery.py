@@ -4,8 +4,6 @@ failed task's cell and exit status."""
 import contextlib
 import io
 import json
-import shutil
-import subprocess
 from html.parser import HTMLParser
 from pathlib import Path
 from urllib.parse import urlparse
@@ -13,6 +11,7 @@ from urllib.parse import urlparse
 import pytest
 
 from taichi_soft import cli
+from browser import Browser
 
 HERE = Path(__file__).resolve().parent
 TERRAINS, INTEGRATORS = ["plane", "sphere"], ["semi_implicit_euler", "midpoint"]
@@ -20,7 +19,6 @@ COLUMNS = INTEGRATORS + ["compare"]
 FPS, DURATION = 30, 1.0  # the shipped scenes' render.fps; frames at t = 0, 1/30, ..., 1 s
 SMALL = ["--terrains", ",".join(TERRAINS), "--integrators", ",".join(INTEGRATORS), "--duration", str(DURATION),
          "--resolution", "320x240", "--set", "body.0.n=4"]
-CHROMIUM = ("chromium-headless-shell", "chromium")  # Debian packages; scripts/setup.sh installs the first
 
 
 def run_main(argv):
@@ -111,55 +109,28 @@ def test_every_video_is_playable_with_the_right_frame_count(gallery):
             assert frames[0].std() > 5, "a blank frame"
 
 
-PROBE = """<script>
-(function () {
-  function report() {
-    var rect = function (e) { var r = e.getBoundingClientRect(); return {x: r.left, y: r.top, w: r.width, h: r.height}; };
-    var cells = Array.prototype.map.call(document.querySelectorAll("figure.cell"), function (f) {
-      var v = f.querySelector("video"); return {id: f.id, box: rect(f), video: v ? rect(v) : null}; });
-    var videos = Array.prototype.map.call(document.querySelectorAll("video"), function (v) {
-      return {src: v.getAttribute("src"), ready: v.readyState, w: v.videoWidth, h: v.videoHeight,
-              duration: v.duration, error: v.error ? v.error.code : null}; });
-    var pre = document.getElementById("probe") || document.body.appendChild(document.createElement("pre"));
-    pre.id = "probe"; pre.textContent = JSON.stringify({cells: cells, videos: videos});
-  }
-  document.querySelectorAll("video").forEach(function (v) {
-    v.addEventListener("loadeddata", report); v.addEventListener("error", report); });
-  report(); setTimeout(report, 3000);
-})();
-</script></body>"""
+# The layout and the videos' state, as the page has them now.
+PROBE = """(function () {
+  var rect = function (e) { var r = e.getBoundingClientRect(); return {x: r.left, y: r.top, w: r.width, h: r.height}; };
+  var cells = Array.prototype.map.call(document.querySelectorAll("figure.cell"), function (f) {
+    var v = f.querySelector("video"); return {id: f.id, box: rect(f), video: v ? rect(v) : null}; });
+  var videos = Array.prototype.map.call(document.querySelectorAll("video"), function (v) {
+    return {src: v.getAttribute("src"), ready: v.readyState, w: v.videoWidth, h: v.videoHeight,
+            duration: v.duration, error: v.error ? v.error.code : null}; });
+  return {cells: cells, videos: videos};
+})()"""
+EVERY_VIDEO_SETTLED = "Array.prototype.every.call(document.querySelectorAll('video'), v => v.error || v.readyState >= 2)"
 
 
-def chromium() -> str:
-    for name in CHROMIUM:
-        path = shutil.which(name)
-        if path:
-            return path
-    pytest.fail("headless Chromium is not installed (Debian package chromium-headless-shell): run "
-                "`bash scripts/setup.sh`; the gallery page was NOT checked in a browser")
-
-
-def browse(binary, url, *extra, width=1400):
-    cmd = [binary, "--headless", "--no-sandbox", "--disable-gpu", "--allow-file-access-from-files",
-           "--force-device-scale-factor=1", f"--window-size={width},1400", "--virtual-time-budget=6000", *extra, url]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-
-
-def test_page_in_headless_chromium_lays_out_the_grid_and_loads_the_videos(gallery, tmp_path):
+def test_page_in_headless_chromium_lays_out_the_grid_and_loads_the_videos(gallery):
     import imageio.v3 as iio
     import numpy as np
 
-    binary = chromium()
     out, _ = gallery
-    probe = out / "probe.html"  # the page plus a script that reports layout and video state
-    probe.write_text((out / "index.html").read_text().replace("</body>", PROBE))
-    try:
-        p = browse(binary, probe.as_uri(), "--dump-dom")
-    finally:
-        probe.unlink()
-    assert p.returncode == 0, p.stderr[-2000:]
-    start = p.stdout.index('<pre id="probe">') + len('<pre id="probe">')
-    state = json.loads(__import__("html").unescape(p.stdout[start:p.stdout.index("</pre>", start)]))
+    with Browser() as browser:
+        browser.open((out / "index.html").as_uri())
+        state = browser.wait_for(EVERY_VIDEO_SETTLED, PROBE)
+        image = iio.imread(browser.screenshot())[..., :3].astype(float)
     for v in state["videos"]:
         assert v["error"] is None and v["ready"] >= 2, f"video did not load in Chromium: {v}"
         assert (v["w"], v["h"]) == ((640, 480) if "compare" in v["src"] else (320, 240)), v
@@ -173,10 +144,6 @@ def test_page_in_headless_chromium_lays_out_the_grid_and_loads_the_videos(galler
         if r:
             above = cells[f"{TERRAINS[r - 1]}-{COLUMNS[0]}"]["box"]
             assert row[0]["y"] >= above["y"] + above["h"], "rows overlap"
-    shot = tmp_path / "gallery.png"
-    p = browse(binary, (out / "index.html").as_uri(), f"--screenshot={shot}")
-    assert p.returncode == 0 and shot.is_file(), p.stderr[-2000:]
-    image = iio.imread(shot)[..., :3].astype(float)
     for c in state["cells"]:  # each video's box in the screenshot shows a picture, not a blank
         b = c["video"]
         x0, y0 = int(b["x"]) + 2, int(b["y"]) + 2
@@ -212,10 +179,9 @@ def test_bad_gallery_input_exits_2_before_any_work(tmp_path):
     assert not (tmp_path / "g").exists() or not any((tmp_path / "g").iterdir())
 
 
-# -- issue 24: every element of a card stays inside it, at ordinary window widths ------------------
-BOXES = """<script>
-(function () {
-  function report() {
+# -- every element of a card stays inside it, at ordinary window widths ---------------------------
+# Every element that pokes out of its card, the cards, the page's width and the cards' error notes.
+BOXES = """(function () {
   var out = [];
   document.querySelectorAll("figure.cell").forEach(function (f) {
     var c = f.getBoundingClientRect();
@@ -226,14 +192,9 @@ BOXES = """<script>
         out.push({cell: f.id, tag: e.tagName, left: r.left, right: r.right, card: [c.left, c.right]});
     });
   });
-  var pre = document.getElementById("probe") || document.body.appendChild(document.createElement("pre"));
-  pre.id = "probe";
-  pre.textContent = JSON.stringify({cells: document.querySelectorAll("figure.cell").length, outside: out,
-                                    page: document.documentElement.scrollWidth, failed: document.querySelectorAll("p.failed").length});
-  }
-  report(); setTimeout(report, 3000);  // after the missing videos' error notes are in
-})();
-</script></body>"""
+  return {cells: document.querySelectorAll("figure.cell").length, outside: out,
+          page: document.documentElement.scrollWidth, failed: document.querySelectorAll("p.failed").length};
+})()"""
 
 
 def _full_width_page() -> str:
@@ -258,14 +219,14 @@ def _full_width_page() -> str:
 
 @pytest.mark.parametrize("width", [1280, 1920])
 def test_no_element_leaves_its_card_at_ordinary_widths(tmp_path, width):
-    """The energy plots were fixed 220 px SVGs: at 1400 px they spilled into the next column."""
-    binary = chromium()
+    """The energy plots were fixed 220 px SVGs: at 1400 px they spilled into the next column. The
+    layout is measured once every card says its video is missing, as a reader would see it."""
     page = tmp_path / "index.html"
-    page.write_text(_full_width_page().replace("</body>", BOXES), encoding="utf-8")
-    p = browse(binary, page.as_uri(), "--dump-dom", width=width)
-    assert p.returncode == 0, p.stderr[-2000:]
-    start = p.stdout.index('<pre id="probe">') + len('<pre id="probe">')
-    state = json.loads(__import__("html").unescape(p.stdout[start:p.stdout.index("</pre>", start)]))
+    page.write_text(_full_width_page(), encoding="utf-8")
+    with Browser(width=width) as browser:
+        browser.open(page.as_uri())
+        state = browser.wait_for("document.querySelectorAll('p.failed').length === "
+                                 "document.querySelectorAll('figure.cell').length", BOXES)
     assert state["cells"] == 4 * 7 and state["failed"] == 4 * 7  # each card says its video is missing
     assert state["outside"] == []
     assert state["page"] <= width  # the seven columns fit: no sideways scrolling

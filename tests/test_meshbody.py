@@ -25,6 +25,14 @@ def meshes(tmp_path_factory):
     tube.export(d / "tube.obj")
     trimesh.creation.box((2.0, 2.0, 0.05)).export(d / "sheet.obj")
     (d / "garbage.obj").write_text("this is not a mesh\n")
+    (d / "noise.stl").write_bytes(np.random.default_rng(1).integers(0, 256, 2000, dtype=np.uint8).tobytes())
+    (d / "short.stl").write_bytes(b"\x01\x02")
+    nan_tet = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 nan\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    (d / "nan.obj").write_text(nan_tet)
+    (d / "inf.obj").write_text(nan_tet.replace("nan", "inf"))
+    # A closed box in a Latin-1 text file (a degree sign in a comment): not UTF-8, still a mesh.
+    box = trimesh.creation.box((2.0, 2.0, 2.0))
+    (d / "latin1.obj").write_bytes("# 20\u00b0C scan\n".encode("latin-1") + trimesh.exchange.obj.export_obj(box).encode())
     (d / "shape.xyz").write_text("0 0 0\n")
     return d
 
@@ -76,6 +84,10 @@ def test_embedding_reproduces_the_rest_surface(meshes):
     ("missing.obj", 8, "no such file"),
     ("shape.xyz", 8, "unknown mesh format"),
     ("garbage.obj", 8, "no triangles"),
+    ("noise.stl", 8, "not a valid STL file"),
+    ("short.stl", 8, "not a valid STL file"),
+    ("nan.obj", 8, "1 of the mesh's 4 vertices have non-finite coordinates"),
+    ("inf.obj", 8, "non-finite coordinates"),
     ("tube.obj", 8, "not closed"),
     ("sheet.obj", 6, "too thin"),
     ("torus.obj", 3, "too thin"),
@@ -84,6 +96,11 @@ def test_bad_meshes_are_refused(meshes, name, n, word):
     with pytest.raises(UserError, match=word) as e:
         mesh_lattice(meshes / name, n, size=2.0, key="body.0.mesh")
     assert str(e.value).startswith("body.0.mesh = ") and "\n" not in str(e.value)
+
+
+def test_a_mesh_in_a_text_file_that_is_not_utf8_is_read(meshes):
+    m = mesh_lattice(meshes / "latin1.obj", 5, size=2.0)
+    assert m.n_particles == 5 ** 3
 
 
 def test_open_mesh_is_repaired_and_says_so(meshes):

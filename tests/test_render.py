@@ -154,6 +154,20 @@ def test_default_camera_keeps_every_body_in_frame_for_the_whole_run(name):
     assert outside == [], f"bodies out of frame at t = {outside[:5]}... ({len(outside)} frames)"
 
 
+def test_scene_camera_follow_key():
+    """``render.camera.follow`` turns tracking on or off, also beside other camera keys."""
+    from taichi_soft.errors import UserError
+    from taichi_soft.sim.scene import load_scene
+
+    assert not scene_camera(load_scene("plane").data, 16 / 9).follow
+    assert scene_camera(load_scene("plane", ["render.camera.follow=true"]).data, 16 / 9).follow
+    fixed = load_scene("plane", ["render.camera.fov=30", "render.camera.follow=true"]).data
+    assert scene_camera(fixed, 16 / 9).follow and scene_camera(fixed, 16 / 9).fov == 30.0
+    assert not scene_camera(load_scene("sphere", ["render.camera.follow=false"]).data, 16 / 9).follow
+    with pytest.raises(UserError, match="true or false"):
+        load_scene("plane", ["render.camera.follow=1"])
+
+
 def test_scene_camera_keys_override_default():
     from taichi_soft.sim.scene import load_scene
 
@@ -202,11 +216,16 @@ def test_fast_paths_match_the_per_pixel_reference(renderer, name):
     it. On the terrain (1 m tiles, lights tens of metres away) that is below 2 levels; on a body it
     is largest on the rounded edges, where the normal turns through 90 degrees within one lattice
     cell, and a 4^3 body is all edges: measured up to 34 levels, on 2-3 % of the pixels at most.
-    The Taichi rasterizer draws the same vertex colours as GGUI, so it differs from GGUI's
-    per-vertex frame only on pixels whose centre lies on an edge between two triangles (Vulkan's
-    top-left rule and our nearer-then-smaller-key rule may pick different sides): isolated pixels.
+    The Taichi rasterizer at ``quality="low"`` draws what GGUI can draw, the same vertex colours
+    (the checker filtered alike), so it differs from GGUI's per-vertex frame only on pixels whose
+    centre lies on an edge between two triangles (Vulkan's top-left rule and our
+    nearer-then-smaller-key rule may pick different sides): isolated pixels. Its shadows
+    (``medium``, GGUI has none) change only pixels inside the screen box of the bodies and their
+    shadow volume, and leave every other pixel as it was; ``high`` (supersampled too) still shows
+    the bodies and the terrain where they are.
     """
-    from taichi_soft.render.renderer import SimulationView, TaichiRenderer
+    from taichi_soft.render.renderer import SimulationView
+    from taichi_soft.render.taichi_renderer import TaichiRenderer
     from taichi_soft.sim.simulation import Simulation
 
     sim = Simulation(small_scene(name))
@@ -217,12 +236,23 @@ def test_fast_paths_match_the_per_pixel_reference(renderer, name):
     reference = renderer.render(view, cam)
     view.per_pixel_lighting = False
     vertex = renderer.render(view, cam)
-    taichi = TaichiRenderer(renderer.width, renderer.height).render(view, cam)
+    taichi = TaichiRenderer(renderer.width, renderer.height, quality="low").render(view, cam)
     d = pixel_differences(vertex, reference)
     assert d.mean() < 1.0 and (d > 8).mean() < 0.05 and d.max() <= 60, (d.mean(), (d > 8).mean(), d.max())
     t = pixel_differences(taichi, vertex)
     assert t.mean() < 0.05 and (t > 8).mean() < 0.002, (t.mean(), (t > 8).mean(), t.max())
     check_bodies_and_terrain(taichi, sim.scene, cam)
+    medium = TaichiRenderer(renderer.width, renderer.height, quality="medium")
+    shadowed = medium.render(view, cam)
+    boxes = np.zeros(shadowed.shape[:2], bool)
+    for rect in (medium.shadow.rect, medium.bodies.rect):
+        boxes[rect[1]:rect[3], rect[0]:rect[2]] = True
+    changed = pixel_differences(shadowed, taichi) > 0
+    # (That shadows appear at all, and where, is tests/test_shading.py's.)
+    assert not (changed & ~boxes).any(), (changed.sum(), (changed & ~boxes).sum())
+    check_bodies_and_terrain(shadowed, sim.scene, cam)
+    check_bodies_and_terrain(TaichiRenderer(renderer.width, renderer.height, quality="high").render(view, cam),
+                             sim.scene, cam)
 
 
 def test_terrain_is_drawn_from_the_live_terrain(renderer):
@@ -449,6 +479,7 @@ def test_obj_writer(tmp_path):
     (["--video", "x.mp4", "--resolution", "97x64"], "even"),
     (["--resolution", "12x9000"], "WIDTHxHEIGHT"),
     (["--frames", "main.py"], "not a directory"),
+    (["--video", "x.mp4", "--quality", "ultra"], "low', 'medium', 'high"),
 ])
 def test_bad_render_flags_exit_2(args, word, tmp_path):
     (tmp_path / "main.py").write_text("")

@@ -117,6 +117,7 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True, pipeline=True)
     from ..render.export import MESH_FORMATS
 
     from ..render.choose import RENDERERS
+    from ..render.quality import DEFAULT_QUALITY, QUALITIES
     from ..render.pipeline import PIPELINES
 
     g = p.add_argument_group("rendering (offscreen: GGUI on a Vulkan GPU, else Taichi kernels on the CPU)")
@@ -139,6 +140,11 @@ def add_render_args(p: argparse.ArgumentParser, mesh_export=True, pipeline=True)
     g.add_argument("--renderer", choices=RENDERERS, default="auto",
                    help="ggui: GGUI through Vulkan; taichi: Taichi kernels, no Vulkan needed, surfaces only; "
                         "auto (default): ggui on a Vulkan GPU or for --particles/--springs, else taichi")
+    g.add_argument("--quality", choices=QUALITIES, default=DEFAULT_QUALITY,
+                   help="the taichi renderer's look: low = as GGUI draws (checker filtered, no shadows); "
+                        "medium = + the bodies' shadows from the key light; high = + antialiased edges (bodies "
+                        f"2x2 samples a pixel, terrain 4x4 for a fixed camera) (default: {DEFAULT_QUALITY}; "
+                        "GGUI draws no shadows: docs/rendering.md)")
     if mesh_export:
         g.add_argument("--export-mesh", metavar="DIR",
                        help="write each frame's surface mesh to DIR/mesh_00000.<fmt>, all bodies merged in one "
@@ -179,7 +185,7 @@ def render_options_from_args(args, scene):
         usd=usd, pc2_dir=check_output_dir(getattr(args, "export_pc2", None), "--export-pc2"),
         mesh_format=getattr(args, "mesh_format", "ply"), fps=render["fps"], resolution=(width, height),
         surface=args.surface, particles=args.particles, springs=args.springs, follow=args.follow, overlay=args.overlay,
-        renderer=args.renderer)
+        renderer=args.renderer, quality=args.quality)
     options.pipeline = choose_pipeline(getattr(args, "pipeline", "serial"), options)
     return options
 
@@ -217,9 +223,14 @@ def load_scene_from_args(args):
 
 
 def start_taichi(args):
-    from .. import runtime
+    """Start Taichi as the command line asked; kernels' first launches are timed (compile_notice)."""
+    import taichi as ti
 
-    return runtime.init(**runtime_args(args))
+    from .. import compile_notice, runtime
+
+    started = runtime.init(**runtime_args(args))
+    compile_notice.install(ti.lang.impl.current_cfg().offline_cache_file_path)
+    return started
 
 
 def runtime_args(args) -> dict:

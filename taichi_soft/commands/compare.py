@@ -1,6 +1,7 @@
 """``compare``: one scene with several integrators at the same dt, one mosaic video."""
 from __future__ import annotations
 
+from .. import compile_notice
 from ..sim.memory import check_fits
 from . import common
 from .common import (DEFAULT_OUT, EXIT_OK, add_render_args, add_scene_args, load_scene_from_args,
@@ -34,6 +35,7 @@ def cmd_compare(args) -> int:
     from ..render.recorder import frame_count
 
     comparison = Comparison(scene, integrators, render_options)
+    compile_notice.watch()
     n_frames = frame_count(scene.sim["duration"], comparison.dt, render_options.fps)
     bar = CountBar(n_frames, f"{scene.label}: {', '.join(integrators)}", unit="frame")
     try:
@@ -52,4 +54,5 @@ def cmd_compare(args) -> int:
             state = f"ran to t = {r.final_time:.3f} s, energy change since t = 0 {r.final_energy:+.6g} J"
         print(f"{r.integrator:22s} dt = {comparison.dt:g} s: {state}")
     print_outputs(zip(("video", "frames"), (render_options.video, render_options.frames)))
+    compile_notice.say_summary()
     return EXIT_OK

@@ -5,6 +5,7 @@ import json
 import sys
 from pathlib import Path
 
+from .. import compile_notice
 from ..errors import OutputError, raise_if_interrupted
 from ..sim import error_estimate
 from ..sim.memory import check_fits
@@ -83,6 +84,7 @@ def cmd_run(args) -> int:
         if render_process is not None:
             render_process.abort()
         raise
+    compile_notice.watch()
     for line in body_lines(sim.model):
         print(line)
     duration = scene.sim["duration"]
@@ -171,6 +173,7 @@ def cmd_run(args) -> int:
         for line in error_estimate.lines(estimate):
             print(line)
     print_outputs(written)
+    compile_notice.say_summary()
     for line in failures:
         print(f"error: {line}", file=sys.stderr)
     for line in summary["solver_warnings"]:

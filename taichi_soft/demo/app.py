@@ -189,7 +189,7 @@ class DemoApp(ControlPanel, WindowInput):
         v.show_surface, v.show_particles = self.draw["surface"], self.draw["particles"]
         v.show_springs = {kind for kind in SPRING_KINDS if self.draw[kind]}
         self.marks.draw(self.scene, 2.5 * v.particle_radius)  # queued before draw_view renders the scene
-        draw_view(self.canvas, self.scene, v)
+        draw_view(self.canvas, self.scene, v, self.size)
 
     def _draw_hud(self):
         batch = Batch2D(self.size)

@@ -162,13 +162,16 @@ def default_camera(scene_data: dict, aspect: float, top_margin: float = 0.0) -> 
 def scene_camera(scene_data: dict, aspect: float, follow: bool | None = None, top_margin: float = 0.0) -> CameraSpec:
     """The scene's ``[render.camera]`` keys over the default camera; ``follow`` overrides tracking.
 
-    A scene that sets any camera key gets a fixed camera unless ``follow`` is True.
-    ``top_margin`` only shapes the default camera (see ``default_camera``).
+    A scene that sets any other camera key gets a fixed camera unless its ``follow`` key (or the
+    ``follow`` argument) is true. ``top_margin`` only shapes the default camera (see ``default_camera``).
     """
     cam = default_camera(scene_data, aspect, top_margin)
-    given = scene_data["render"].get("camera", {})
+    given = dict(scene_data["render"].get("camera", {}))
+    follow_key = given.pop("follow", None)
     if given:
         cam = replace(cam, follow=False, **{k: (tuple(v) if isinstance(v, list) else float(v)) for k, v in given.items()})
+    if follow_key is not None:
+        cam = replace(cam, follow=bool(follow_key))
     if follow is not None:
         cam = replace(cam, follow=follow)
     return cam

@@ -2,7 +2,7 @@
 
 ``ggui``: a hidden GGUI window through Vulkan (``renderer.Renderer``): everything (surfaces,
 terrain, particles, springs), fast on a GPU, ~3x slower than ``taichi`` on Mesa's lavapipe.
-``taichi``: Taichi kernels on the CPU (``renderer.TaichiRenderer``, ``raster.py``): surfaces and
+``taichi``: Taichi kernels on the CPU (``taichi_renderer.TaichiRenderer``, ``raster.py``): surfaces and
 terrain, no Vulkan needed. ``auto``: ggui where Vulkan offers a GPU or the frame needs particles
 or springs, else taichi. Both draw the same lit vertex colours (docs/rendering.md).
 
@@ -11,6 +11,7 @@ Nothing here imports Taichi at module level: the CLI validates the choice before
 from __future__ import annotations
 
 from ..errors import UserError
+from .quality import DEFAULT_QUALITY, check_quality
 
 RENDERERS = ("auto", "ggui", "taichi")
 
@@ -30,9 +31,15 @@ def choose_renderer(kind: str = "auto", needs_ggui: bool = False) -> str:
     return kind
 
 
-def make_renderer(width: int, height: int, kind: str = "auto", needs_ggui: bool = False):
-    """The renderer ``choose_renderer`` picks, ``width`` x ``height`` pixels (Taichi initialised).
+def make_renderer(width: int, height: int, kind: str = "auto", needs_ggui: bool = False,
+                  quality: str = DEFAULT_QUALITY):
+    """The renderer ``choose_renderer`` picks, ``width`` x ``height`` pixels (Taichi initialised);
+    ``quality`` shapes the Taichi rasterizer's frames (GGUI draws no shadows and one sample a pixel).
     A GGUI one without a usable Vulkan device raises ``NoVulkanDevice`` (one line)."""
-    from .renderer import Renderer, TaichiRenderer
+    from .renderer import Renderer
+    from .taichi_renderer import TaichiRenderer
 
-    return (Renderer if choose_renderer(kind, needs_ggui) == "ggui" else TaichiRenderer)(width, height)
+    check_quality(quality)
+    if choose_renderer(kind, needs_ggui) == "ggui":
+        return Renderer(width, height)
+    return TaichiRenderer(width, height, quality)

@@ -78,7 +78,8 @@ class Comparison(FrameJob):
         width, height = options.resolution
         self.cols, self.rows = grid_shape(len(integrators), width, height)
         self.tile_w, self.tile_h = width // self.cols, height // self.rows
-        self.renderer = make_renderer(self.tile_w, self.tile_h, options.renderer, options.particles or options.springs)
+        self.renderer = make_renderer(self.tile_w, self.tile_h, options.renderer, options.particles or options.springs,
+                                      options.quality)
         self.sinks, self.writer = [], None
         try:
             self.tiles = []

@@ -59,24 +59,34 @@ def _diffuse(p, n, light_pos, two_sided):
 vec3f = ti.types.vector(3, ti.f32)
 
 
+@ti.func
+def _luminance(c):
+    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+
+
 @ti.kernel
 def _shade(vertices: ti.template(), normals: ti.template(), base: ti.template(), out: ti.template(),
-           ambient: vec3f, key_pos: vec3f, key_col: vec3f, fill_pos: vec3f, fill_col: vec3f, two_sided: ti.i32):
+           share: ti.template(), ambient: vec3f, key_pos: vec3f, key_col: vec3f, fill_pos: vec3f, fill_col: vec3f,
+           two_sided: ti.i32):
     for v in vertices:
         # eps: a degenerate vertex with a zero normal gets ambient light only, not NaN.
         p, n, c = vertices[v], normals[v].normalized(1e-20), base[v]
-        result = c * (ambient + _diffuse(p, n, key_pos, two_sided) * key_col
-                      + _diffuse(p, n, fill_pos, two_sided) * fill_col)
+        key = c * _diffuse(p, n, key_pos, two_sided) * key_col
+        result = c * (ambient + _diffuse(p, n, fill_pos, two_sided) * fill_col) + key
         # The colour attachment saturates at 1 per pixel; clamping per vertex keeps interpolated
         # colours inside the same range.
         out[v] = ti.min(result, 1.0)
+        # What a shadow takes away: the key light's part of the (unclamped) luminance.
+        share[v] = ti.min(_luminance(key) / ti.max(_luminance(result), 1e-6), 1.0)
 
 
-def shade(vertices, normals, base, out, rig: LightRig, two_sided: bool = False):
+def shade(vertices, normals, base, out, share, rig: LightRig, two_sided: bool = False):
     """Light every vertex: ``out[v]`` = GGUI's Lambertian colour of a surface point at
     ``vertices[v]`` [m] with unit normal ``normals[v]`` and base colour ``base[v]`` (f32 vec3
-    fields of one length), under ``rig``. ``two_sided``: faces lit from behind as from the front."""
-    _shade(vertices, normals, base, out, rig.ambient, rig.key_position, rig.key_color, rig.fill_position,
+    fields of one length), under ``rig``; ``share[v]`` (f32 field, in [0, 1]) = the key light's
+    fraction of that colour's luminance, which a shadow removes (``raster.py``). ``two_sided``:
+    faces lit from behind as from the front."""
+    _shade(vertices, normals, base, out, share, rig.ambient, rig.key_position, rig.key_color, rig.fill_position,
            rig.fill_color, int(two_sided))
 
 

@@ -39,6 +39,7 @@ class TriMesh:
     triangles: np.ndarray
     two_sided: bool = False
     closed: bool = False
+    checker_tile: int = 0  # cells per checker tile (``_checker_grid``); 0: not a checkerboard
 
 
 def _checker_grid(position, normal, nu: int, nv: int, colors, tile: int = 1, two_sided=False) -> TriMesh:
@@ -64,7 +65,7 @@ def _checker_grid(position, normal, nu: int, nv: int, colors, tile: int = 1, two
     tris[flip] = tris[flip][:, ::-1]
     parity = ((i // tile + j // tile) % 2).repeat(4)
     cols = np.asarray(colors, dtype=np.float64)[parity]
-    return TriMesh(flat_v, flat_n, cols, tris, two_sided)
+    return TriMesh(flat_v, flat_n, cols, tris, two_sided, checker_tile=tile)
 
 
 def plane_mesh(point, normal, focus, half_size: float) -> TriMesh:
@@ -148,6 +149,61 @@ def terrain_meshes(kind: str, params: dict, scene_data: dict) -> list[TriMesh]:
     if kind == "bowl":
         return [bowl_mesh(params["center"], params["radius"])]
     return []
+
+
+# -- the checker filtered for its footprint on screen -----------------------------------------
+mat4f = ti.types.matrix(4, 4, ti.f32)
+vec2f = ti.types.vector(2, ti.f32)
+vec3f = ti.types.vector(3, ti.f32)
+
+
+@ti.kernel
+def _fade_checker(vertices: ti.template(), colors: ti.template(), out: ti.template(), mvp: mat4f, size: vec2f,
+                  near: ti.f32, tiles_per_cell: ti.f32, mean: vec3f):
+    for cell in range(vertices.shape[0] // 4):
+        # Corners 0, 1 and 3 of the cell ((0, 0), (1, 0), (0, 1) in its (u, v)) on screen [px].
+        pix = ti.Matrix.zero(ti.f32, 3, 2)
+        behind = False
+        for k in ti.static(range(3)):
+            v = vertices[4 * cell + (0, 1, 3)[k]]
+            c = mvp @ ti.Vector([v[0], v[1], v[2], 1.0], dt=ti.f32)
+            if c[3] < near:
+                behind = True
+            w = ti.max(c[3], near)
+            pix[k, 0] = (c[0] / w + 1.0) * 0.5 * size[0]
+            pix[k, 1] = (1.0 - c[1] / w) * 0.5 * size[1]
+        # J: pixels per cell along u and v (columns); J^-1: cells per pixel step.
+        j = ti.Matrix([[pix[1, 0] - pix[0, 0], pix[2, 0] - pix[0, 0]], [pix[1, 1] - pix[0, 1], pix[2, 1] - pix[0, 1]]])
+        det = j.determinant()
+        keep = 1.0
+        if not behind:
+            keep = 0.0
+            if ti.abs(det) > 1e-12:
+                inv = j.inverse()
+                # The pixel's footprint in tiles: the larger of its extents along u and v.
+                foot = ti.max(ti.abs(inv[0, 0]) + ti.abs(inv[0, 1]), ti.abs(inv[1, 0]) + ti.abs(inv[1, 1]))
+                keep = ti.min(ti.max(2.0 * (1.0 - foot * tiles_per_cell), 0.0), 1.0)
+        for k in ti.static(range(4)):
+            c = colors[4 * cell + k]
+            out[4 * cell + k] = c if keep >= 1.0 else mean + keep * (c - mean)  # exact where kept
+
+
+def fade_checker(vertices, colors, out, tile: int, mean, mvp, width: int, height: int):
+    """A checkerboard's vertex colours as seen by a camera: ``out`` = ``colors`` faded towards
+    their ``mean`` where a pixel's footprint covers more than half a tile.
+
+    For each cell (4 consecutive vertices, as ``_checker_grid`` makes them) the Jacobian of its
+    projection (``mvp``: world -> clip, images ``width`` x ``height`` px) gives the pixel's
+    footprint ``f`` in tiles (its larger extent, ``tile`` cells a tile); the checker's contrast is
+    kept in full for f <= 1/2 (tiles of 2 px or more: a period of 4 px, twice the Nyquist limit)
+    and falls linearly to none at f = 1 (a period of 2 px, the Nyquist limit), so no checker
+    frequency above the pixel's Nyquist limit is drawn. Cells reaching behind the camera keep
+    their colour (they are the nearest, largest ones). GGUI draws the same colours.
+    """
+    from .camera import Z_NEAR
+
+    _fade_checker(vertices, colors, out, np.asarray(mvp, np.float32), (float(width), float(height)), Z_NEAR,
+                  1.0 / tile, tuple(float(c) for c in mean))
 
 
 # -- bodies -------------------------------------------------------------------------------------

@@ -34,6 +34,7 @@ class RenderOptions:
     follow: bool | None = None  # None: the terrain's default
     overlay: bool = True
     renderer: str = "auto"  # "auto", "ggui" or "taichi" (render.choose)
+    quality: str = "high"  # the taichi renderer's look: render.quality.QUALITIES
     pipeline: str = "serial"  # "serial" or "overlap" (render.pipeline): where the frames are drawn
 
     @property
@@ -90,7 +91,8 @@ class FrameRecorder(FrameJob, FrameVisits):
             from .choose import make_renderer
             from .renderer import SimulationView
 
-            self.renderer = make_renderer(width, height, options.renderer, options.particles or options.springs)
+            self.renderer = make_renderer(width, height, options.renderer, options.particles or options.springs,
+                                          options.quality)
         try:
             if self.renderer is not None:
                 self.view = SimulationView(sim, options.surface, options.particles, options.springs)

@@ -4,8 +4,8 @@
 optional particles and springs, lit per vertex (``lighting.py``). Two renderers draw views
 (Taichi must be initialised first), both with ``render(view, camera)`` returning the frame as
 uint8 RGB [height, width, 3]: ``Renderer(width, height)`` owns a hidden GGUI window (GGUI brings
-up its own Vulkan device, also with ``arch=cpu``); ``TaichiRenderer(width, height)`` rasterizes
-in Taichi kernels (``raster.py``), surfaces and terrain only. ``choose.make_renderer`` picks one.
+up its own Vulkan device, also with ``arch=cpu``); ``taichi_renderer.TaichiRenderer(width,
+height)`` rasterizes in Taichi kernels (``raster.py``), surfaces and terrain only, with shadows. ``choose.make_renderer`` picks one.
 """
 
 from typing import NamedTuple
@@ -15,16 +15,17 @@ import taichi as ti
 
 from ..sim.lattice import SPRING_KINDS
 from ..sim.spring_codes import group_kind
-from .camera import CameraSpec
+from .camera import CameraSpec, projection_matrix, view_matrix
 from .embedded import body_surface
 from .lighting import LightRig, apply_rig_to_ggui, light_rig, shade
-from .meshes import BODY_COLORS, TriMesh, terrain_meshes
+from .meshes import BODY_COLORS, TriMesh, fade_checker, terrain_meshes
 from .window import open_window, window_rgb
 
 BACKGROUND = (0.86, 0.89, 0.93)
 SPRING_COLORS = {"stretch": (0.15, 0.35, 0.95), "shear": (0.10, 0.70, 0.25), "bend": (0.85, 0.15, 0.70)}
 PARTICLE_COLOR = (0.12, 0.12, 0.15)
 _RIG_ATTR = "_taichi_soft_rig"  # where ``apply_camera`` leaves the light rig on a ti.ui.Scene for ``draw_view``
+_SPEC_ATTR = "_taichi_soft_camera"  # and the camera it aimed
 
 
 def aim_camera(camera, spec: CameraSpec):
@@ -47,16 +48,19 @@ def apply_camera(scene, camera, spec: CameraSpec) -> LightRig:
     scene.set_camera(camera)
     rig = light_rig(spec)
     setattr(scene, _RIG_ATTR, rig)
+    setattr(scene, _SPEC_ATTR, spec)
     return rig
 
 
-def draw_view(canvas, scene, view: "SimulationView"):
+def draw_view(canvas, scene, view: "SimulationView", size=None):
     """Draw ``view`` into ``scene`` and the scene onto ``canvas`` over the ``BACKGROUND`` colour
-    (the camera and lights set first, by ``apply_camera``)."""
+    (the camera and lights set first, by ``apply_camera``). ``size`` = (width, height) of the
+    image [px]: the terrain's checker is filtered for it (``meshes.fade_checker``)."""
     rig = getattr(scene, _RIG_ATTR, None)
     if rig is None:
         raise RuntimeError("draw_view needs apply_camera(scene, ...) first: it sets the camera and the lights")
-    view.draw(scene, rig)
+    spec = getattr(scene, _SPEC_ATTR, None)
+    view.draw(scene, rig, None if size is None or spec is None else (spec, int(size[0]), int(size[1])))
     canvas.set_background_color(BACKGROUND)
     canvas.scene(scene)
 
@@ -86,18 +90,22 @@ def draw_mesh(scene, identity, vertices, indices, normals, colors, two_sided=Fal
 class LitMesh(NamedTuple):
     """Fields of a mesh ready to draw: f32 vec3 ``vertices`` [m], i32 triangle corners
     ``indices``, unit ``normals``, ``colors`` lit per vertex; ``closed``: faces seen from behind
-    are hidden (``TriMesh.closed``)."""
+    are hidden (``TriMesh.closed``); ``share``: f32, the key light's share of each vertex colour
+    (what a shadow takes away, ``lighting.shade``)."""
 
     vertices: object
     indices: object
     normals: object
     colors: object
     closed: bool
+    share: object = None
+    body: bool = False  # a body's surface (casts shadows), not terrain
 
 
 class _StaticMesh:
     """A ``TriMesh`` uploaded once into the f32 fields GGUI draws from, with its lit vertex
-    colours (``lit``), relit only when the light rig changes (a fixed camera: once per run)."""
+    colours (``lit``), relit only when the light rig or the camera changes (a fixed camera: once
+    per run). A checkerboard is faded for its footprint on screen first (``meshes.fade_checker``)."""
 
     def __init__(self, mesh: TriMesh):
         n = len(mesh.vertices)
@@ -105,6 +113,11 @@ class _StaticMesh:
         self.normals = ti.Vector.field(3, ti.f32, n)
         self.colors = ti.Vector.field(3, ti.f32, n)
         self.lit = ti.Vector.field(3, ti.f32, n)
+        self.share = ti.field(ti.f32, n)
+        self.checker_tile = mesh.checker_tile
+        if self.checker_tile:
+            self.faded = ti.Vector.field(3, ti.f32, n)
+            self.checker_mean = np.unique(mesh.colors, axis=0).mean(axis=0)
         self.indices = ti.field(ti.i32, mesh.triangles.size)
         self.vertices.from_numpy(mesh.vertices.astype(np.float32))
         self.normals.from_numpy(mesh.normals.astype(np.float32))
@@ -112,14 +125,24 @@ class _StaticMesh:
         self.indices.from_numpy(np.ascontiguousarray(mesh.triangles, dtype=np.int32).ravel())
         self.two_sided, self.closed = mesh.two_sided, mesh.closed
         self._lit_by = None
+        self.base = self.colors  # the colours lit: ``colors``, or ``faded`` for the last camera
 
-    def light(self, rig: LightRig):
-        if rig != self._lit_by:
-            shade(self.vertices, self.normals, self.colors, self.lit, rig, self.two_sided)
-            self._lit_by = rig
+    def light(self, rig: LightRig, viewport=None):
+        """Light for ``rig``; ``viewport`` = (camera, width, height) filters a checkerboard for it."""
+        if (rig, viewport) != self._lit_by:
+            base = self.colors
+            if self.checker_tile and viewport is not None:
+                cam, width, height = viewport
+                mvp = projection_matrix(cam, width / height) @ view_matrix(cam)
+                fade_checker(self.vertices, self.colors, self.faded, self.checker_tile, self.checker_mean, mvp,
+                             width, height)
+                base = self.faded
+            self.base = base
+            shade(self.vertices, self.normals, base, self.lit, self.share, rig, self.two_sided)
+            self._lit_by = (rig, viewport)
 
     def lit_mesh(self) -> "LitMesh":
-        return LitMesh(self.vertices, self.indices, self.normals, self.lit, self.closed)
+        return LitMesh(self.vertices, self.indices, self.normals, self.lit, self.closed, self.share)
 
 
 @ti.data_oriented
@@ -152,8 +175,10 @@ class SimulationView:
         palette = np.asarray(BODY_COLORS, dtype=np.float32)
         self.body_colors.from_numpy(palette[self.surface.vertex_body % len(palette)])
         self.surface_lit = ti.Vector.field(3, ti.f32, self.surface.n_vertices)  # body colours lit per vertex
+        self.surface_share = ti.field(ti.f32, self.surface.n_vertices)  # their key light's share
         self.per_pixel_lighting = False
         self._terrain_params = None
+        self.terrain_version = 0  # counts terrain rebuilds (a renderer may keep the terrain's image)
         self.terrain: list[_StaticMesh] = []
         self._sync_terrain()
         self.points = None
@@ -202,6 +227,7 @@ class SimulationView:
         params = (terrain.kind, terrain.params())
         if params != self._terrain_params:
             self._terrain_params = params
+            self.terrain_version += 1
             self.terrain = [_StaticMesh(m) for m in terrain_meshes(params[0], params[1], self.sim.scene.data)]
 
     def update(self):
@@ -213,34 +239,38 @@ class SimulationView:
         if self.points is not None:
             self._gather_points(x)
 
-    def light(self, rig: LightRig):
-        """Light the drawn meshes' vertices with ``rig`` (the terrain only when the rig changed)."""
+    def light(self, rig: LightRig, viewport=None):
+        """Light the drawn meshes' vertices with ``rig`` (the terrain only when the rig or the
+        camera changed). ``viewport`` = (``CameraSpec``, width, height [px]) of the image: the
+        terrain's checker is filtered for that view (``meshes.fade_checker``); None draws it raw."""
         for mesh in self.terrain:
-            mesh.light(rig)
+            mesh.light(rig, viewport)
         if self.show_surface:
             s = self.surface
-            shade(s.vertices, s.normals, self.body_colors, self.surface_lit, rig)
+            shade(s.vertices, s.normals, self.body_colors, self.surface_lit, self.surface_share, rig)
 
     def lit_meshes(self) -> list[LitMesh]:
         """Every mesh drawn, with the vertex colours of the last ``light``."""
         meshes = [m.lit_mesh() for m in self.terrain]
         if self.show_surface:
             s = self.surface
-            meshes.append(LitMesh(s.vertices, s.indices, s.normals, self.surface_lit, True))
+            meshes.append(LitMesh(s.vertices, s.indices, s.normals, self.surface_lit, True, self.surface_share, True))
         return meshes
 
-    def draw(self, scene, rig: LightRig):
-        """Queue the view's meshes, lines and particles into a GGUI ``scene`` lit by ``rig``."""
+    def draw(self, scene, rig: LightRig, viewport=None):
+        """Queue the view's meshes, lines and particles into a GGUI ``scene`` lit by ``rig``;
+        ``viewport`` as for ``light``."""
         if self.per_pixel_lighting or self.show_particles:
             apply_rig_to_ggui(scene, rig)
             for m in self.terrain:
-                draw_mesh(scene, self._identity, m.vertices, m.indices, m.normals, m.colors, m.two_sided)
+                m.light(rig, viewport)  # only for the checker's filtered colours
+                draw_mesh(scene, self._identity, m.vertices, m.indices, m.normals, m.base, m.two_sided)
             if self.show_surface:
                 s = self.surface
                 draw_mesh(scene, self._identity, s.vertices, s.indices, s.normals, self.body_colors)
         else:
             scene.ambient_light((1.0, 1.0, 1.0))  # the vertex colours are lit already: GGUI passes them on
-            self.light(rig)
+            self.light(rig, viewport)
             for m in self.lit_meshes():
                 draw_mesh(scene, self._identity, m.vertices, m.indices, m.normals, m.colors)
         for name, (first, count) in self.spring_ranges.items():
@@ -279,7 +309,7 @@ class Renderer:
         if update:
             view.update()
         apply_camera(self.scene, self.camera, cam)
-        draw_view(self.canvas, self.scene, view)
+        draw_view(self.canvas, self.scene, view, (self.width, self.height))
         return self.read_image()
 
     def read_image(self) -> np.ndarray:
@@ -288,37 +318,3 @@ class Renderer:
 
     def close(self):
         self.window.destroy()
-
-
-class TaichiRenderer:
-    """The offscreen renderer without Vulkan: ``raster.TaichiRasterizer`` draws the views' lit
-    meshes in Taichi kernels (the CPU path; see ``choose_renderer``). Same ``render`` as
-    ``Renderer``; surfaces and terrain only (particles and springs need GGUI)."""
-
-    def __init__(self, width: int, height: int):
-        from .raster import TaichiRasterizer
-
-        self.width, self.height = int(width), int(height)
-        self.raster = TaichiRasterizer(self.width, self.height)
-
-    @property
-    def aspect(self) -> float:
-        return self.width / self.height
-
-    def render(self, view: SimulationView, cam: CameraSpec, update: bool = True) -> np.ndarray:
-        """Draw ``view`` (its current state unless ``update`` is False) seen by ``cam``.
-
-        Returns uint8 RGB [height, width, 3], row 0 at the top.
-        """
-        if view.show_particles or view.show_springs:
-            raise ValueError("the taichi renderer draws surfaces and terrain only; particles and springs need GGUI")
-        if update:
-            view.update()
-        view.light(light_rig(cam))
-        self.raster.begin(cam, BACKGROUND)
-        for m in view.lit_meshes():
-            self.raster.draw(m.vertices, m.indices, m.colors, cull=m.closed)
-        return self.raster.finish()
-
-    def close(self):
-        pass

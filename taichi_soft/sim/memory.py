@@ -16,7 +16,8 @@ On the CPU backend fields live in host memory; on GPU backends they are device m
 host keeps only the base and the host arrays. ``check_fits`` compares the estimate with
 ``available_bytes`` and refuses, with one line, what cannot fit. The CLI calls it before
 Taichi starts. Not modelled: rendering (GGUI buffers, a few bytes per surface vertex plus the
-Vulkan driver) and the demo window.
+Vulkan driver; the Taichi renderer's image buffers, about 60 MB at 1280 x 720 and the default
+quality, docs/rendering.md) and the demo window.
 
 Measured on the 2-core, 24 GB CPU machine (``python main.py bench memory``, docs/benchmarks):
 the estimate is within a few per cent of the peak resident memory for n >= 40.

@@ -89,6 +89,21 @@ class MeshLattice:
         return self.vertices.max(axis=0) - self.vertices.min(axis=0)
 
 
+def check_stl(path: Path) -> None:
+    """Raise ``UserError`` unless ``path`` is an ASCII STL (text starting with ``solid``) or a binary
+    one (an 80-byte header, a triangle count n and 50 bytes per triangle: 84 + 50 n bytes)."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(1024)
+    if size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size:
+        return
+    if head.lstrip().lower().startswith(b"solid") and b"\0" not in head:
+        return
+    count = int.from_bytes(head[80:84], "little") if size >= 84 else 0
+    raise UserError(f"{str(path)!r}: not a valid STL file: it is not text starting with 'solid' (ASCII STL), "
+                    f"and its {size} bytes do not match a binary STL (84 + 50 x {count} triangles)")
+
+
 def load_mesh(path: Path):
     """The closed triangle mesh in ``path`` as a ``trimesh.Trimesh`` and a list of notes on what
     was repaired. Raises ``UserError`` (one line, starting with the path) for a missing,
@@ -103,14 +118,21 @@ def load_mesh(path: Path):
         raise UserError(f"{str(path)!r}: no such file")
     if not os.access(path, os.R_OK):
         raise UserError(f"{str(path)!r}: file is not readable")
+    if path.suffix.lower() == ".stl":
+        check_stl(path)
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=True)
+        # Unprocessed first: trimesh's processing drops non-finite vertices with their triangles, and
+        # the user would hear of an open mesh instead of the bad coordinates.
+        mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as e:  # noqa: BLE001 - trimesh raises many kinds on a malformed file
         raise UserError(f"{str(path)!r}: cannot read the mesh: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise UserError(f"{str(path)!r}: the file holds no triangles")
-    if not np.isfinite(mesh.vertices).all():
-        raise UserError(f"{str(path)!r}: the mesh has non-finite vertex coordinates")
+    bad = int((~np.isfinite(mesh.vertices)).any(axis=1).sum())
+    if bad:
+        raise UserError(f"{str(path)!r}: {bad} of the mesh's {len(mesh.vertices)} vertices have non-finite "
+                        "coordinates (NaN or infinity)")
+    mesh.process(validate=False)  # what trimesh.load(process=True) does: merge duplicate vertices
     notes = []
     if not mesh.is_watertight:
         trimesh.repair.fill_holes(mesh)

@@ -36,7 +36,7 @@ SHAPES = ("cube", "mesh")
 # Keys of a mesh body only (no default: a mesh body names its file; scale replaces size).
 MESH_BODY_KEYS = ("mesh", "scale")
 RENDER_DEFAULTS = {"fps": 30, "resolution": [1280, 720], "camera": {}}
-CAMERA_KEYS = {"position", "lookat", "up", "fov"}
+CAMERA_KEYS = {"position", "lookat", "up", "fov", "follow"}
 TOP_KEYS = ("sim", "body", "terrain", "contact", "render", "solver")
 MAX_N = 200  # particles per cube edge (8 million particles); whether a size fits is memory.check_fits's call
 
@@ -181,6 +181,8 @@ def validate(raw: dict, integrator_names=None) -> dict:
         cam["up"] = _vec3("render.camera.up", cam["up"], nonzero=True)
     if "fov" in cam and (not _is_number(cam["fov"]) or not 1 <= cam["fov"] <= 170):
         raise UserError(f"render.camera.fov = {cam['fov']!r}: must be a number of degrees in [1, 170]")
+    if "follow" in cam and not isinstance(cam["follow"], bool):
+        raise UserError(f"render.camera.follow = {cam['follow']!r}: must be true or false")
     # [solver]: options of the chosen integrator; the integrator validates names and values.
     solver = dict(_table("solver", raw.get("solver", {})))
     return {"sim": sim, "body": bodies, "terrain": terrain, "contact": contact, "render": render, "solver": solver}

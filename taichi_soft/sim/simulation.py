@@ -284,6 +284,23 @@ def check_start(sim: Simulation):
         if depth > 0:
             raise UserError(f"body.{b} starts {depth:.3g} m inside the terrain ({sim.terrain.kind}); "
                             f"move it out (body.{b}.center)")
+    # A spring the surface crosses has both ends within its length of the surface; a lattice spring
+    # is at most a body diagonal of two cells, 2 sqrt(3) spacings (= 4 sqrt(3) contact radii).
+    reach = np.zeros(len(d))
+    for body in sim.model.bodies:
+        reach[body.particles] = 4.0 * math.sqrt(3.0) * body_radius(body.spec) * max(1.0, *body.spec.initial_stretch)
+    near = d < reach
+    if near.sum() < 2:
+        return
+    ends = sim.model.pairs_np
+    ends = ends[near[ends[:, 0]] & near[ends[:, 1]]]
+    x = sim.state.x.to_numpy().astype(np.float64)
+    cut = ends[sim.terrain.crossed(x[ends[:, 0]], x[ends[:, 1]]), 0]
+    for b, body in enumerate(sim.model.bodies):
+        count = int(np.isin(cut, np.arange(len(d))[body.particles]).sum())
+        if count:
+            raise UserError(f"body.{b} starts cut by the terrain's surface ({sim.terrain.kind}: it passes "
+                            f"through {count} of the body's springs); move it clear (body.{b}.center)")
     x0 = sim.model.x0_np
     bodies = sim.model.bodies
     for b, body in enumerate(bodies):

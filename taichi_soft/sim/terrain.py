@@ -85,6 +85,11 @@ class Terrain:
         """Geometry parameters as plain Python values (for renderers and summaries)."""
         return {}
 
+    def crossed(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Which segments a -> b ([n, 3] each, metres) the terrain's surface passes through: a body
+        whose springs it crosses straddles the surface even when no particle is inside the terrain."""
+        return np.zeros(len(a), dtype=bool)
+
     def signed_distances(self, x) -> np.ndarray:
         """Signed distance [m] of every particle at positions ``x`` (a vec3 field) to the surface,
         negative inside the terrain (call after ``reset``: the bowl's answer depends on it)."""
@@ -234,6 +239,10 @@ class Plane(Terrain):
         return {"point": list(self.point[None].to_numpy().tolist()),
                 "normal": list(self.normal[None].to_numpy().tolist())}
 
+    def crossed(self, a, b):
+        n, p = self.normal[None].to_numpy(), self.point[None].to_numpy()
+        return np.sign((a - p) @ n) * np.sign((b - p) @ n) < 0
+
     @ti.func
     def query(self, i, x):
         n = self.normal[None]
@@ -269,6 +278,22 @@ class Sphere(Terrain):
     def params(self):
         return {"center": self.center[None].to_numpy().tolist(), "radius": float(self.radius[None])}
 
+    def _sphere_crossings(self, a, b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Segment parameters t0 <= t1 where a + t (b - a) meets the sphere |x - c| = r (NaN where the
+        line misses it), and the segments b - a."""
+        c, r = self.center[None].to_numpy(), float(self.radius[None])
+        d, f = b - a, a - c
+        dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
+        half_b = np.einsum("ij,ij->i", f, d)
+        disc = half_b ** 2 - dd * (np.einsum("ij,ij->i", f, f) - r * r)
+        root = np.sqrt(np.where(disc >= 0, disc, np.nan))
+        return (-half_b - root) / dd, (-half_b + root) / dd, d
+
+    def crossed(self, a, b):
+        t0, t1, _ = self._sphere_crossings(a, b)
+        with np.errstate(invalid="ignore"):
+            return (t1 > 0) & (t0 < 1)  # the segment meets the solid ball
+
     @ti.func
     def query(self, i, x):
         r = x - self.center[None]
@@ -303,6 +328,15 @@ class Bowl(Sphere):
                 self.inside[i] = ti.cast(ti.Vector([r.x, r.z]).norm() < self.radius[None], ti.i8)
             else:
                 self.inside[i] = ti.cast(r.norm() < self.radius[None], ti.i8)
+
+    def crossed(self, a, b):
+        t0, t1, d = self._sphere_crossings(a, b)
+        below = float(self.center[None][1])  # the shell is the part under the rim plane
+        out = np.zeros(len(a), dtype=bool)
+        with np.errstate(invalid="ignore"):
+            for t in (t0, t1):
+                out |= (t >= 0) & (t <= 1) & (a[:, 1] + t * d[:, 1] < below)
+        return out
 
     @ti.func
     def post_step(self, i, x):

@@ -26,6 +26,7 @@ from typing import ClassVar
 
 import taichi as ti
 
+from ... import runtime
 from ..allocation import allocate, page_aligned_vectors
 from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
@@ -197,7 +198,8 @@ class Integrator:
                 if n_steps % 2 == 1:
                     self._copy_state(xo, vo, x, v)
         elif self._serial():
-            self._advance_serial(x, v, dt, start, n_steps)
+            with runtime.ir_passes(self._serial_ir_passes()):
+                self._advance_serial(x, v, dt, start, n_steps)
         else:
             for k in range(n_steps):
                 self._advance_parallel(x, v, dt, start + k)
@@ -247,6 +249,11 @@ class Integrator:
 
     def _serial(self) -> bool:
         return self.mode == "serial"  # resolved
+
+    def _serial_ir_passes(self) -> bool:
+        """Whether the many-step serial kernel is compiled with Taichi's IR passes (when the runtime
+        runs them); a solver whose serial kernel compiles for long and runs no faster for them says no."""
+        return True
 
     @ti.kernel
     def _advance_serial(self, x: ti.template(), v: ti.template(), dt: float, start: ti.i32, n_steps: ti.i32):

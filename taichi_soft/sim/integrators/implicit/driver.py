@@ -328,6 +328,11 @@ class ImplicitIntegrator(Integrator):
         bad = int(self.diverged_step[None])
         return bad - start + 1 if self.diverged else n_steps
 
+    def _serial_ir_passes(self) -> bool:
+        # With body pairs the one-launch step is several times the one-body kernel, and Taichi's IR
+        # passes on it take most of its compile (docs/decisions/serial-step-ir-passes.md).
+        return self.pairs is None
+
     # -- public API -----------------------------------------------------------------------------------
     def advance(self, state, dt: float, n_steps: int) -> int:
         self._sync_masses()
