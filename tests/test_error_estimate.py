@@ -74,3 +74,14 @@ def test_run_reports_the_estimate_and_refuses_bad_tolerances(tmp_path, monkeypat
         err = capsys.readouterr().err
         assert code == 2 and len(err.strip().splitlines()) == 1 and "--tolerance" in err, (bad, err)
         assert not (tmp_path / "b.json").exists()
+
+
+def test_the_estimate_of_a_free_fall_is_semi_implicit_eulers_known_error(make_sim):
+    """A cube falling without touching anything: semi-implicit Euler's centre of mass is off by
+    exactly g dt t / 2 at time t (first order, no higher terms), so the extrapolated error of the
+    largest (last) sample is that, and the shape (a rigid fall) agrees to round-off."""
+    sim = make_sim("plane", ["body.0.n=3"], integrator="semi_implicit_euler", dt=1e-3)
+    est = ee.estimate(sim, 0.5, 1)
+    assert est["com_error"] == pytest.approx(9.8 * 1e-3 * 0.5 / 2, rel=1e-6)
+    assert est["observed_order_com"] == pytest.approx(1.0, abs=1e-6)
+    assert est["shape_round_off"] and est["in_asymptotic_range"]
