@@ -94,6 +94,9 @@ class Integrator:
     force_evals = 0  # force evaluations per step
     implicit = False
     description = ""
+    # The largest step [s] the gallery gives it by default (None: the scene's dt), for a method whose
+    # stability limit on the default scenes is below their dt.
+    largest_default_dt = None
     # Whether its parallel launches want Taichi's CPU pool workers pinned one to a core (cpu_threads.py:
     # an explicit step's few long loops ran 1.5-2x faster so; the implicit solvers' many short ones slower).
     pins_pool_workers = True
