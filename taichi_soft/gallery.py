@@ -51,7 +51,10 @@ def run_dt(scene_dt: float, integrator: str, dt: float | None) -> float:
 
     if dt is not None:
         return dt
-    return IMPLICIT_DT if REGISTRY[integrator].implicit else scene_dt
+    cls = REGISTRY[integrator]
+    if cls.implicit:
+        return IMPLICIT_DT
+    return scene_dt if cls.largest_default_dt is None else min(scene_dt, cls.largest_default_dt)
 
 
 def video_name(terrain: str, integrator: str) -> str:

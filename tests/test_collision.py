@@ -25,7 +25,7 @@ def stack_scene(tmp_path):
     return path
 
 
-@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "velocity_verlet", "rk4"])
 def test_cube_dropped_on_a_cube_stays_on_top(make_sim, stack_scene, integrator):
     sets = _two_cubes(make_sim, integrator, [0.1, 2.5, 0.05])
     sim = make_sim(str(stack_scene), sets, integrator=integrator)
@@ -62,11 +62,12 @@ def test_a_cube_slides_on_a_cube_at_mu_g(mu):
         assert min(r["relative_vx"]) > 1.45  # keeps sliding
 
 
-def test_head_on_collision_conserves_momentum_and_the_cubes_separate(make_sim, stack_scene):
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "velocity_verlet"])
+def test_head_on_collision_conserves_momentum_and_the_cubes_separate(make_sim, stack_scene, integrator):
     """Free space, no gravity: two cubes at +-2 m/s meet off-centre, exchange momentum, part."""
-    sets = _two_cubes(make_sim, "semi_implicit_euler", [3.0, 0.7, 0.2], gravity=(0, 0, 0),
+    sets = _two_cubes(make_sim, integrator, [3.0, 0.7, 0.2], gravity=(0, 0, 0),
                       v=((2.0, 0.0, 0.0), (-2.0, 0.0, 0.0))) + ["terrain.kind=none"]
-    sim = make_sim(str(stack_scene), sets, integrator="semi_implicit_euler")
+    sim = make_sim(str(stack_scene), sets, integrator=integrator)
     m = sim.model.mass_np
     a, b = (body.particles for body in sim.model.bodies)
 

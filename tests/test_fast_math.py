@@ -29,8 +29,9 @@ def _eval(fe: ti.template(), x: ti.template(), v: ti.template(), a: ti.template(
 _REFERENCE = {}
 
 
-def reference_step(model, terrain, name, x, v, dt):
-    """One step from the general force pass (group lookups, an acceleration buffer) in numpy."""
+def reference_step(model, terrain, name, x, v, dt, carried=None):
+    """One step from the general force pass (group lookups, an acceleration buffer) in numpy;
+    ``carried`` (a dict) holds what a method carries from step to step (velocity Verlet's force)."""
     if id(model) not in _REFERENCE:  # one evaluator per model: one compile
         _REFERENCE[id(model)] = (ForceEvaluator(model, terrain, "gather", fused=False), model.state(),
                                  ti.Vector.field(3, float, model.n_particles))
@@ -44,6 +45,13 @@ def reference_step(model, terrain, name, x, v, dt):
     if name == "semi_implicit_euler":
         vn = v + dt * accel(x, v)
         return x + dt * vn, vn
+    if name == "velocity_verlet":  # the force carried from the last step: a_n = a(x_n, v_pred) (or a(x_0, v_0))
+        an = carried.get("a")
+        an = accel(x, v) if an is None else an
+        vh = v + 0.5 * dt * an
+        xn = x + dt * vh
+        carried["a"] = accel(xn, vh + 0.5 * dt * an)
+        return xn, vh + 0.5 * dt * carried["a"]
     A, b = TABLEAUS[name]
     ks = []
     for s in range(len(b)):
@@ -58,8 +66,9 @@ def reference_step(model, terrain, name, x, v, dt):
 # (launch mode, force strategy, integrators): every strategy, both scatter launch modes with all
 # methods, ping-pong (one-stage methods with gathered forces) both ways.
 FUSED_CASES = [("serial", "scatter", EXPLICIT), ("parallel", "scatter", ["explicit_euler", "semi_implicit_euler", "rk4"]),
-               ("parallel", "gather", ["explicit_euler", "semi_implicit_euler", "midpoint"]),
-               ("serial", "gather", ["semi_implicit_euler"]), ("serial", "per_spring", ["rk4"])]
+               ("parallel", "gather", ["explicit_euler", "semi_implicit_euler", "velocity_verlet", "midpoint"]),
+               ("serial", "gather", ["semi_implicit_euler", "velocity_verlet"]),
+               ("serial", "per_spring", ["velocity_verlet", "rk4"]), ("parallel", "per_spring", ["velocity_verlet"])]
 
 
 @pytest.mark.parametrize("mode, forces, names", FUSED_CASES, ids=[f"{m}-{f}" for m, f, _ in FUSED_CASES])
@@ -76,10 +85,10 @@ def test_fused_steps_match_the_reference_force_pass(mode, forces, names):
         integ = make_integrator(name, model, terrain, {"mode": mode, "forces": forces})
         state = model.state()
         state.set(x0, v0)
-        x, v = x0, v0
+        x, v, carried = x0, v0, {}
         for steps in (1, 2):
             for _ in range(steps):
-                x, v = reference_step(model, terrain, name, x, v, dt)
+                x, v = reference_step(model, terrain, name, x, v, dt, carried)
             assert integ.advance(state, dt, steps) == steps
             xe, ve = state.numpy()
             np.testing.assert_allclose(xe, x, rtol=0, atol=1e-12, err_msg=f"{name} {mode} {forces} x after {steps}")

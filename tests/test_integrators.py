@@ -7,11 +7,11 @@ from taichi_soft.sim.integrators import REGISTRY
 from physics_helpers import build, simulate, stretched, total_energy
 
 EXPLICIT = [name for name, cls in REGISTRY.items() if not cls.implicit]
-ORDERS = {"explicit_euler": 1, "semi_implicit_euler": 1, "midpoint": 2, "rk4": 4}
+ORDERS = {"explicit_euler": 1, "semi_implicit_euler": 1, "velocity_verlet": 2, "midpoint": 2, "rk4": 4}
 
 
 def test_registry_lists_the_explicit_family():
-    assert {"explicit_euler", "semi_implicit_euler", "midpoint", "rk4"} <= set(REGISTRY)
+    assert {"explicit_euler", "semi_implicit_euler", "velocity_verlet", "midpoint", "rk4"} <= set(REGISTRY)
 
 
 @pytest.mark.parametrize("name", EXPLICIT)
@@ -73,12 +73,13 @@ def _reference(model, terrain, x0, t_end):
 
 
 def test_convergence_orders():
-    """Free-floating cube started stretched: error slopes near 1, 1, 2, 4 against a tiny-step RK4."""
+    """Free-floating cube started stretched: error slopes near 1, 1, 2, 2, 4 against a tiny-step RK4."""
     model, terrain = build(n=4, size=1.5, stretch=(2000.0, 20.0), shear=(2000.0, 20.0), bend=(2000.0, 20.0))
     x0 = stretched(model)
     t_end = 0.2
     ref = _reference(model, terrain, x0, t_end)
     dts = {"explicit_euler": (1e-3, 5e-4, 2.5e-4), "semi_implicit_euler": (1e-3, 5e-4, 2.5e-4),
+           "velocity_verlet": (1e-3, 5e-4, 2.5e-4),
            "midpoint": (2e-3, 1e-3, 5e-4), "rk4": (4e-3, 2e-3, 1e-3)}
     for name in EXPLICIT:
         errs = []

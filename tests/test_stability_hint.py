@@ -16,7 +16,7 @@ def _energy(sim):
     return f["kinetic_energy"] + f["potential_energy"]
 
 
-@pytest.mark.parametrize("name", ["explicit_euler", "semi_implicit_euler", "midpoint", "rk4"])
+@pytest.mark.parametrize("name", ["explicit_euler", "semi_implicit_euler", "velocity_verlet", "midpoint", "rk4"])
 def test_the_hinted_step_is_stable(make_sim, name):
     sim = make_sim("plane", [*SMALL, f"sim.integrator={name}", "sim.dt=0.02"])  # one simulation: one compile
     sim.advance(50)

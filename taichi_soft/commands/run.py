@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .. import compile_notice
 from ..errors import OutputError, raise_if_interrupted
+from ..sim import error_estimate
 from ..sim.memory import check_fits
 from ..outfiles import finite_or_none
 from . import common
@@ -23,8 +24,31 @@ def add_parser(sub):
     p_run.add_argument("--states", help="write sampled states (t, x, v) to this .npz")
     p_run.add_argument("--dry-run", action="store_true",
                        help="print what would be simulated and written and the memory estimate, then exit")
+    p_run.add_argument("--error-estimate", action="store_true",
+                       help="rerun at dt/2 and dt/4: the largest centre-of-mass and shape differences, the "
+                            "extrapolated error for the method's order and whether the runs fit it (about 7x the run's cost)")
+    p_run.add_argument("--tolerance", type=tolerance_arg, metavar="METRES",
+                       help="run at the largest step whose error estimate meets this [m], halving from 0.9x the "
+                            "method's linear stability limit (each try costs about 7 runs)")
     add_render_args(p_run)
     p_run.set_defaults(func=cmd_run)
+
+
+MAX_HALVINGS = 10  # --tolerance: tries below the first step
+
+
+def tolerance_arg(text: str) -> float:
+    """--tolerance: a finite number of metres > 0."""
+    import argparse
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--tolerance {text!r} is not a number") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"--tolerance {text!r}: must be a finite number of metres > 0")
+    return value
 
 
 def cmd_run(args) -> int:
@@ -64,6 +88,15 @@ def cmd_run(args) -> int:
     for line in body_lines(sim.model):
         print(line)
     duration = scene.sim["duration"]
+    estimate = None
+    if args.tolerance is not None:
+        estimate = _step_for_tolerance(sim, duration, args.tolerance)
+        if estimate is None:
+            if render_process is not None:
+                render_process.abort()
+            return EXIT_UNRELIABLE
+    elif args.error_estimate:
+        estimate = error_estimate.estimate(sim, duration, sim.integrator.order)
     fps = scene.data["render"]["fps"]
     label = f"{scene.label}/{sim.integrator_name}"
     _note_whole_steps(duration, sim.dt)
@@ -117,6 +150,9 @@ def cmd_run(args) -> int:
         except OutputError as e:
             failures.append(str(e))
     summary = sim.summary(result)
+    if estimate is not None:
+        estimate["run_wall_seconds"] = result.wall_seconds
+        summary["error_estimate"] = estimate
     if summary_path:
         text = json.dumps(finite_or_none(summary), indent=2)
         failures += write_output("summary", summary_path, lambda tmp: Path(tmp).write_text(text + "\n"), written)
@@ -133,6 +169,9 @@ def cmd_run(args) -> int:
         print(f"{scene.label}/{sim.integrator_name}: {result.steps} steps of {sim.dt:g} s = {result.sim_time:.3f} s "
               f"simulated in {result.wall_seconds:.2f} s wall ({summary['steps_per_second']:.0f} steps/s); "
               f"final centre of mass ({com}), kinetic energy {f['kinetic_energy']:.3g} J")
+    if estimate is not None:
+        for line in error_estimate.lines(estimate):
+            print(line)
     print_outputs(written)
     compile_notice.say_summary()
     for line in failures:
@@ -158,3 +197,37 @@ def _note_whole_steps(duration: float, dt: float):
     if abs(steps * dt - duration) > 1e-9 * duration:
         print(f"note: simulating {steps} steps of {dt:g} s = {steps * dt:g} s (sim.duration {duration:g} s "
               "is not a whole number of steps)", file=sys.stderr)
+
+
+def _step_for_tolerance(sim, duration: float, tolerance: float) -> dict | None:
+    """Set ``sim``'s dt to the largest step, halving from 0.9x the method's linear stability limit
+    for the scene (the scene's dt for a method without one), whose error estimate fits the method's
+    order and meets ``tolerance`` [m] on both measures; returns that estimate with the tries and
+    their cost, or None (said on stderr) when no step down to MAX_HALVINGS halvings met it."""
+    import math
+
+    from ..sim.integrators import linear_stability
+
+    w2, ratios = linear_stability.scene_modes(sim.model)
+    limit = linear_stability.stable_limit(sim.integrator_name, w2, ratios)
+    dt = linear_stability.round_down(0.9 * limit) if limit is not None and 0 < limit < math.inf else sim.dt
+    tries, cost = [], 0.0
+    for _ in range(MAX_HALVINGS + 1):
+        sim.set_dt(dt)
+        est = error_estimate.estimate(sim, duration, sim.integrator.order)
+        cost += est["cost_seconds"]
+        worst = None if not est["in_asymptotic_range"] else max(est["com_error"], est["shape_error"])
+        tries.append({"dt": dt, "error": worst})
+        print(f"tolerance {tolerance:g} m: dt = {dt:.3g} s: "
+              + (f"estimated error {worst:.3g} m" if worst is not None else "no estimate (diverged, or the runs do "
+                 "not fit the method's order)"))
+        if worst is not None and worst <= tolerance:
+            est["tolerance"] = tolerance
+            est["tolerance_tries"] = tries
+            est["tolerance_cost_seconds"] = cost
+            print(f"tolerance {tolerance:g} m: running at dt = {dt:.3g} s (the search cost {cost:.2f} s of wall time)")
+            return est
+        dt /= 2
+    print(f"error: no step down to {2 * dt:.3g} s met --tolerance {tolerance:g} m (the search cost {cost:.2f} s)",
+          file=sys.stderr)
+    return None

@@ -161,8 +161,9 @@ def validate(raw: dict, integrator_names=None) -> dict:
     contact["friction"] = _nonneg("contact.friction", contact["friction"])
     contact["epsilon"] = _positive("contact.epsilon", contact["epsilon"])
     contact["bounce_threshold"] = _nonneg("contact.bounce_threshold", contact["bounce_threshold"])
-    if not isinstance(contact["impact_friction"], bool):
-        raise UserError(f"contact.impact_friction = {contact['impact_friction']!r}: must be true or false")
+    for key in ("impact_friction", "impact_at_crossing"):
+        if not isinstance(contact[key], bool):
+            raise UserError(f"contact.{key} = {contact[key]!r}: must be true or false")
 
     render = _merge(RENDER_DEFAULTS, _table("render", raw.get("render", {})))
     _check_keys("render", render, RENDER_DEFAULTS)

@@ -32,8 +32,9 @@ KINDS = ("none", "plane", "tilted_plane", "sphere", "bowl")
 # bounce_threshold: 1 m/s as in Box2D (b2_velocityThreshold): slower impacts are inelastic. It is
 # far below this project's drops (a cube falling 8 m hits at ~12.5 m/s) and far above the
 # sub-mm/s jitter of a particle resting on the surface.
+# impact_at_crossing: false is the seed's rule (a particle is answered where the step's end finds it).
 CONTACT_DEFAULTS = {"restitution": 0.8, "friction": 0.3, "epsilon": 0.01,
-                    "bounce_threshold": 1.0, "impact_friction": True}
+                    "bounce_threshold": 1.0, "impact_friction": True, "impact_at_crossing": False}
 
 # Geometry parameters each terrain kind accepts, with defaults from the assignment.
 DEFAULTS = {
@@ -63,14 +64,18 @@ class Terrain:
         self.epsilon = ti.field(float, ())  # contact detection distance [m]
         self.bounce_threshold = ti.field(float, ())  # slowest approach [m/s] that bounces
         self.impact_friction = ti.field(ti.i32, ())  # 1: Coulomb friction on the impact impulse
+        self.impact_at_crossing = ti.field(ti.i32, ())  # 1: impacts answered at the crossing time
         self.set_contact(**{**CONTACT_DEFAULTS, **contact})
 
-    def set_contact(self, restitution=None, friction=None, epsilon=None, bounce_threshold=None, impact_friction=None):
+    def set_contact(self, restitution=None, friction=None, epsilon=None, bounce_threshold=None, impact_friction=None,
+                    impact_at_crossing=None):
         """Set restitution [-], friction coefficient [-], contact distance epsilon [m], bounce
-        threshold [m/s] and whether friction acts on the impact impulse (bool)."""
+        threshold [m/s], whether friction acts on the impact impulse (bool) and whether the
+        straight-drift methods answer an impact at its crossing time (bool, ``respond_path``)."""
         given = {self.restitution: restitution, self.friction: friction, self.epsilon: epsilon,
                  self.bounce_threshold: bounce_threshold,
-                 self.impact_friction: None if impact_friction is None else int(bool(impact_friction))}
+                 self.impact_friction: None if impact_friction is None else int(bool(impact_friction)),
+                 self.impact_at_crossing: None if impact_at_crossing is None else int(bool(impact_at_crossing))}
         assign({f: v for f, v in given.items() if v is not None})
 
     def reset(self, x: ti.template()):
@@ -141,6 +146,45 @@ class Terrain:
                 v = self.impact(v, n, vn)
         self.post_step(i, x)
         return x, v
+
+    @ti.func
+    def respond_path(self, i, x0, x1, v, a, dt):
+        """``respond`` for a particle that drifted from ``x0`` to ``x1`` = x0 + dt v [m] during a
+        step of ``dt`` [s]: ``v`` [m/s] is the mean velocity of the path, ``a`` [m/s^2] the
+        acceleration along it (its velocity at fraction s of the step is v + (s - 1/2) dt a:
+        velocity Verlet's drift; zero for semi-implicit Euler's constant-velocity drift).
+
+        Without ``impact_at_crossing``: ``respond`` at ``x1``, the seed's end-of-step rule: an
+        approach is answered wherever the step's end finds the particle in the contact band
+        (d < epsilon) or inside. With it, when the approach happened: a particle that starts
+        outside the band and ends in it (or inside) is moved back to where its path enters the band
+        (the signed distance interpolated linearly along the path: exact for a plane), its velocity
+        there answered with ``impact``, and advanced for the rest of the step. The same model at a
+        finer time: both rules converge to one answer as dt -> 0. Then ``respond`` as always (it
+        projects whatever is still inside, and answers a particle that started in the band).
+        Returns (x1, v) with v the path's mean velocity as above, after the impact (so the method's
+        last kick of dt/2 a ends at the velocity of the end of the step)."""
+        xo, vo = x1, v
+        if self.impact_at_crossing[None] != 0:
+            eps = self.epsilon[None]
+            d1, _ = self.query(i, x1)
+            if d1 < eps:
+                d0, _ = self.query(i, x0)
+                if d0 > eps:
+                    s = (d0 - eps) / (d0 - d1)  # the fraction of the step before the band's edge
+                    xc = x0 + s * (x1 - x0)
+                    _, n = self.query(i, xc)
+                    vc = v + ((s - 0.5) * dt) * a
+                    vn = n.dot(vc)
+                    if vn < 0:
+                        vc = self.impact(vc, n, vn)
+                    rest = (1.0 - s) * dt
+                    xo = xc + rest * (vc + (0.5 * rest) * a)
+                    vo = vc + ((0.5 - s) * dt) * a
+            xo, vo = self.respond(i, xo, vo)
+        else:
+            xo, vo = self.respond(i, x1, v)
+        return xo, vo
 
     @ti.func
     def impact(self, v, n, vn):

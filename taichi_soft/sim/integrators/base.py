@@ -94,6 +94,9 @@ class Integrator:
     force_evals = 0  # force evaluations per step
     implicit = False
     description = ""
+    # The largest step [s] the gallery gives it by default (None: the scene's dt), for a method whose
+    # stability limit on the default scenes is below their dt.
+    largest_default_dt = None
     # Whether its parallel launches want Taichi's CPU pool workers pinned one to a core (cpu_threads.py:
     # an explicit step's few long loops ran 1.5-2x faster so; the implicit solvers' many short ones slower).
     pins_pool_workers = True
@@ -333,6 +336,22 @@ class Integrator:
             xn, vn = self.terrain.respond(i, xn, vn)
         x[i] = xn
         v[i] = vn
+        self._check_divergence(vn, step)
+
+    @ti.func
+    def _drift(self, i, x0, v, a, dt):
+        """Particle i's position [m] after drifting for ``dt`` [s] from ``x0`` at the mean velocity
+        ``v`` [m/s] (acceleration ``a`` [m/s^2] along the path, zero for a constant velocity), and
+        that velocity after the terrain's response to the path (``Terrain.respond_path``: at the
+        end of the step, or at the crossing time)."""
+        xn = x0 + dt * v
+        if ti.static(self.terrain.has_contact):
+            xn, v = self.terrain.respond_path(i, x0, xn, v, a, dt)
+        return xn, v
+
+    @ti.func
+    def _check_divergence(self, vn, step):
+        """Record ``step`` as diverged if the velocity ``vn`` is non-finite or too fast."""
         speed2 = vn.dot(vn)  # NaN if any component is NaN, inf if any is infinite
         if _not_finite(speed2) or speed2 > self.speed2_limit[None]:
             ti.atomic_min(self.diverged_step[None], step)

@@ -16,7 +16,7 @@ state itself (``Integrator.ping_pong``).
 import taichi as ti
 
 from ..allocation import page_aligned_vectors
-from ..footprint import Buffers, FieldCounts
+from ..footprint import VEC, Buffers, FieldCounts, per_particle
 from .base import MB, Integrator, register
 
 
@@ -176,7 +176,92 @@ class SemiImplicitEuler(Integrator):
         self.forces.spring_pass(x, v)
         for i in range(self.n):
             vn = v[i] + dt * self.forces.accel(x, v, i, dt)
-            self._finish(i, xo, vo, x[i] + dt * vn, vn, step)
+            xn, vn = self._drift(i, x[i], vn, ti.Vector.zero(float, 3), dt)
+            xo[i] = xn
+            vo[i] = vn
+            self._check_divergence(vn, step)
+
+
+@register
+@ti.data_oriented
+class VelocityVerlet(Integrator):
+    """Kick-drift-kick velocity Verlet with the force carried between steps. Second order.
+
+    v_{n+1/2} = v_n + dt/2 a_n;  x_{n+1} = x_n + dt v_{n+1/2};
+    a_{n+1} = a(x_{n+1}, v_{n+1/2} + dt/2 a_n);  v_{n+1} = v_{n+1/2} + dt/2 a_{n+1}.
+
+    One force evaluation per step: a_{n+1} is kept (``accel``) for the next step's first kick,
+    and the first step of a run (or after ``reset`` or a model change) evaluates a_0 once. The
+    damper needs v_{n+1}, which depends on a_{n+1}: it is evaluated at the linear prediction
+    v_n + dt a_n (an O(dt^2) error in the force, a local O(dt^3) one in the step, so the method
+    stays second order; with the damper at v_{n+1/2}, semi-implicit Euler's choice, it is first).
+    Without dampers it is leapfrog: symplectic, time-reversible. The terrain answers the drift
+    (``_drift``); no pass writes what a neighbour reads in the same loop, so every force
+    strategy steps in place.
+    """
+
+    name = "velocity_verlet"
+    # measured (memory.py), peak RSS cold / warm cache: 147 / 127 MB, beside semi-implicit Euler's 150 / 129
+    BASE_BYTES = 138 * MB
+    order = 2
+    force_evals = 1
+    description = "kick-drift-kick velocity Verlet, damper at the predicted velocity (1 force eval)"
+    largest_default_dt = 5e-4  # its linear stability limit on the default cube is 0.98 ms (below the scenes' 1 ms)
+    BUFFERS = {"accel": per_particle("the last step's end acceleration a_n [m/s^2]", VEC),
+               "v_pred": per_particle("the predicted end-of-step velocity the damper reads [m/s]", VEC)}
+
+    def __init__(self, model, terrain, options=None, contacts=None):
+        super().__init__(model, terrain, options, contacts)
+        self._primed = False  # whether ``accel`` holds a_n of the state to step
+
+    def advance(self, state, dt: float, n_steps: int) -> int:
+        if n_steps > 0 and not self.diverged and not self._primed:
+            self._prime(state.x, state.v, dt)
+            self._primed = True
+        return super().advance(state, dt, n_steps)
+
+    def reset(self):
+        super().reset()
+        self._primed = False
+
+    def notify_model_changed(self, flags: int):
+        self._primed = False  # the carried force was the old model's
+
+    @ti.kernel
+    def _prime(self, x: ti.template(), v: ti.template(), dt: float):
+        """accel = a(x, v): the start of the first step."""
+        self._refresh()
+        if ti.static(self._serial()):
+            ti.loop_config(serialize=True)  # the serial force pass (plain scatter adds) on one thread
+            for _ in range(1):
+                self._evaluate(x, v, dt)
+        else:
+            self._evaluate(x, v, dt)
+
+    @ti.func
+    def _evaluate(self, x: ti.template(), v: ti.template(), dt):
+        self.forces.spring_pass(x, v)
+        for i in range(self.n):
+            self.accel[i] = self.forces.accel(x, v, i, dt)
+
+    @ti.func
+    def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
+        """In place: kick and drift (each particle reads only itself), then the force pass at the
+        new positions and predicted velocities (v_pred, not written in that loop) and the kick."""
+        half = 0.5 * dt
+        for i in range(self.n):
+            a = self.accel[i]
+            xn, vh = self._drift(i, x[i], v[i] + half * a, a, dt)
+            x[i] = xn
+            v[i] = vh
+            self.v_pred[i] = vh + half * a
+        self.forces.spring_pass(x, self.v_pred)
+        for i in range(self.n):
+            a = self.forces.accel(x, self.v_pred, i, dt)
+            self.accel[i] = a
+            vn = v[i] + half * a
+            v[i] = vn
+            self._check_divergence(vn, step)
 
 
 @register

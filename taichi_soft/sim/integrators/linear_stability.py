@@ -40,13 +40,27 @@ def _symplectic_euler(h, jac):
     return np.array([[1 - h * h * w2, h * (1 - h * g)], [-h * w2, 1 - h * g]])
 
 
+def _velocity_verlet(h, jac):
+    """One step of ``velocity_verlet`` on the state (x, v, a) it carries (a: the last force, taken
+    at the predicted velocity): vh = v + h/2 a, x1 = x + h vh, a1 = J (x1, vh + h/2 a),
+    v1 = vh + h/2 a1. A 3 x 3 matrix: the carried force is a state of the method."""
+    w2, g = -jac[1, 0], -jac[1, 1]
+    x1 = np.array([1.0, h, h * h / 2])
+    vp = np.array([0.0, 1.0, h])
+    a1 = -w2 * x1 - g * vp
+    v1 = np.array([0.0, 1.0, h / 2]) + (h / 2) * a1
+    return np.array([x1, v1, a1])
+
+
 # Amplification matrix of one step of each explicit method on J = [[0, 1], [-w2, -g]] (explicit
-# Runge-Kutta methods: the degree-s Taylor polynomial of h J, their stability function).
+# Runge-Kutta methods: the degree-s Taylor polynomial of h J, their stability function); a method
+# carrying more state than (x, v) maps all of it.
 AMPLIFICATION = {
     "explicit_euler": _taylor(1),
     "midpoint": _taylor(2),
     "rk4": _taylor(4),
     "semi_implicit_euler": _symplectic_euler,
+    "velocity_verlet": _velocity_verlet,
 }
 
 

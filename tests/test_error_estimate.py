@@ -1,0 +1,87 @@
+"""A run's own error estimate (``run --error-estimate``) against the true error of a tiny-step
+reference, its pieces against analytic answers, and ``run --tolerance``'s refusals."""
+import json
+
+import numpy as np
+import pytest
+
+from taichi_soft.sim import error_estimate as ee
+
+SMOOTH = ["body.0.n=4", "body.0.size=2.0"]  # the free-floating stretched cube: no contact, smooth
+
+
+def _rotation(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def test_rigid_fit_takes_out_rotation_and_translation_only():
+    rng = np.random.default_rng(1)
+    a = rng.standard_normal((50, 3))
+    moved = a @ _rotation((1, 2, 0.5), 0.8).T + np.array([3.0, -1.0, 2.0])
+    assert ee.rigid_fit_rms(a, moved) < 1e-12
+    # a uniform stretch by 1 + s about the centroid is no rigid motion: RMS s |r| exactly
+    c = a - a.mean(axis=0)
+    s = 1e-3
+    assert ee.rigid_fit_rms(a, a.mean(axis=0) + (1 + s) * c) == pytest.approx(
+        s * np.sqrt(np.mean(np.sum(c * c, axis=1))), rel=1e-3)
+    # a mirror image is not fitted by a rotation
+    assert ee.rigid_fit_rms(a, a * np.array([-1.0, 1.0, 1.0])) > 0.1
+
+
+def test_judge_extrapolates_only_where_the_runs_fit_the_order():
+    observed, err = ee.judge(4e-3, 1e-3, 2)  # ratio 4: order 2
+    assert observed == pytest.approx(2.0) and err == pytest.approx(4e-3 * 4 / 3)
+    observed, err = ee.judge(4e-3, 2e-3, 2)  # ratio 2: first order, not the method's second
+    assert observed == pytest.approx(1.0) and err is None
+    assert ee.judge(1e-3, 0.0, 1) == (None, None)
+
+
+@pytest.mark.parametrize("name", ["semi_implicit_euler", "velocity_verlet", "midpoint"])
+def test_the_estimate_is_within_a_factor_two_of_the_true_error(make_sim, name):
+    """On the smooth case, against RK4 at a step 40 times smaller sampled at the same times: the
+    estimated shape error of the run at dt is within a factor 2 of its true largest shape error."""
+    duration, dt = 0.2, 1e-3
+    sim = make_sim("free_float", SMOOTH, integrator=name, dt=dt)
+    est = ee.estimate(sim, duration, sim.integrator.order)
+    assert est["in_asymptotic_range"] and not est["diverged"], est
+    assert abs(est["observed_order_shape"] - sim.integrator.order) < 0.3
+    assert est["com_round_off"]  # nothing moves the centre of mass of a free body
+    steps = list(range(200 // est["samples"], 201, 200 // est["samples"]))  # the estimate's sample times
+    run, _ = ee.sample_run(sim, dt, 200, steps)
+    ref_sim = make_sim("free_float", SMOOTH, integrator="rk4", dt=dt / 40)
+    ref, _ = ee.sample_run(ref_sim, dt / 40, 200 * 40, [k * 40 for k in steps])
+    true = max(ee.rigid_fit_rms(r, x) for r, x in zip(ref, run))
+    assert 0.5 < est["shape_error"] / true < 2.0, (est["shape_error"], true)
+
+
+def test_run_reports_the_estimate_and_refuses_bad_tolerances(tmp_path, monkeypatch, capsys):
+    from taichi_soft import cli
+    from taichi_soft.commands import common
+
+    monkeypatch.setattr(common, "start_taichi", lambda args: None)  # conftest's runtime is running
+    summary = tmp_path / "s.json"
+    code = cli.main(["run", "--scene", "free_float", *sum((["--set", s] for s in SMOOTH), []),
+                     "--integrator", "velocity_verlet", "--duration", "0.1", "--error-estimate", "--summary", str(summary)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    est = json.loads(summary.read_text())["error_estimate"]
+    assert est["dts"] == [1e-3, 5e-4, 2.5e-4] and est["shape_error"] > 0 and est["cost_seconds"] > 0
+    assert "estimated error" in out and "observed order" in out
+    for bad in ("0", "-1e-3", "nan", "inf", "two"):
+        code = cli.main(["run", "--scene", "free_float", "--tolerance", bad, "--summary", str(tmp_path / "b.json")])
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1 and "--tolerance" in err, (bad, err)
+        assert not (tmp_path / "b.json").exists()
+
+
+def test_the_estimate_of_a_free_fall_is_semi_implicit_eulers_known_error(make_sim):
+    """A cube falling without touching anything: semi-implicit Euler's centre of mass is off by
+    exactly g dt t / 2 at time t (first order, no higher terms), so the extrapolated error of the
+    largest (last) sample is that, and the shape (a rigid fall) agrees to round-off."""
+    sim = make_sim("plane", ["body.0.n=3"], integrator="semi_implicit_euler", dt=1e-3)
+    est = ee.estimate(sim, 0.5, 1)
+    assert est["com_error"] == pytest.approx(9.8 * 1e-3 * 0.5 / 2, rel=1e-6)
+    assert est["observed_order_com"] == pytest.approx(1.0, abs=1e-6)
+    assert est["shape_round_off"] and est["in_asymptotic_range"]
