@@ -297,7 +297,7 @@ def page_html(plan: Plan, cells: dict, wall_seconds: float) -> str:
              f"{plan.resolution[0]}x{plan.resolution[1]} px per run"
              f"{', --set ' + esc(' '.join(plan.sets)) if plan.sets else ''}; all tasks took {wall_seconds:.0f} s. "
              f'Data: <a href="gallery.json">gallery.json</a>.</p>',
-             f'<div class="grid" style="grid-template-columns: 2em repeat({len(cols)}, minmax(150px, 1fr));">',
+             f'<div class="grid" style="grid-template-columns: 2em repeat({len(cols)}, minmax(120px, 1fr));">',
              '<div></div>'] + [f'<div class="head">{esc(c)}</div>' for c in cols]
     for terrain in plan.terrains:
         parts.append(f'<div class="row">{esc(terrain)}</div>')

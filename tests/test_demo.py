@@ -310,8 +310,9 @@ def test_every_advertised_control_works_through_real_x_input(xvfb, tmp_path):
     (``taichi_soft.demo.scripted`` checks what each did), screenshots show the scene, a pause keeps
     the plot's history, and Esc closes the window."""
     env = dict(os.environ, DISPLAY=xvfb, PYTHONUNBUFFERED="1", PYTHONPATH=str(ROOT))
+    # 700 px: the panel's left column, one button per integrator, fits (at 640 its last rows are cut off)
     proc = subprocess.run([sys.executable, "-m", "taichi_soft.demo.scripted", "--set", "body.0.n=3",
-                           "--resolution", "1024x640"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                           "--resolution", "1024x700"], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=400)
     if "Vulkan" in proc.stderr and proc.returncode != 0 and "checks" not in proc.stdout:
         missing_tool(f"no Vulkan device: {proc.stderr.strip().splitlines()[-1]}")
