@@ -304,9 +304,11 @@ def check_terrain_crossing(sim: Simulation, d: np.ndarray):
     (``d``: the particles' signed distances [m]): it straddles the surface with no particle inside."""
     # A spring the surface crosses has both ends within its length of the surface; a lattice spring
     # is at most a body diagonal of two cells, 2 sqrt(3) spacings (= 4 sqrt(3) contact radii).
-    reach = np.zeros(len(d))
-    for body in sim.model.bodies:
+    bodies = sim.model.bodies
+    reach, owner = np.zeros(len(d)), np.zeros(len(d), dtype=np.int64)
+    for b, body in enumerate(bodies):
         reach[body.particles] = 4.0 * math.sqrt(3.0) * body_radius(body.spec) * max(1.0, *body.spec.initial_stretch)
+        owner[body.particles] = b
     near = d < reach
     if near.sum() < 2:
         return
@@ -314,8 +316,7 @@ def check_terrain_crossing(sim: Simulation, d: np.ndarray):
     ends = ends[near[ends[:, 0]] & near[ends[:, 1]]]
     x = sim.state.x.to_numpy().astype(np.float64)
     cut = ends[sim.terrain.crossed(x[ends[:, 0]], x[ends[:, 1]]), 0]
-    for b, body in enumerate(sim.model.bodies):
-        count = int(np.isin(cut, np.arange(len(d))[body.particles]).sum())
+    for b, count in enumerate(np.bincount(owner[cut], minlength=len(bodies))):
         if count:
             raise UserError(f"body.{b} starts cut by the terrain's surface ({sim.terrain.kind}: it passes "
                             f"through {count} of the body's springs); move it clear (body.{b}.center)")

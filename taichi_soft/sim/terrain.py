@@ -181,10 +181,7 @@ class Terrain:
                     rest = (1.0 - s) * dt
                     xo = xc + rest * (vc + (0.5 * rest) * a)
                     vo = vc + ((0.5 - s) * dt) * a
-            xo, vo = self.respond(i, xo, vo)
-        else:
-            xo, vo = self.respond(i, x1, v)
-        return xo, vo
+        return self.respond(i, xo, vo)
 
     @ti.func
     def impact(self, v, n, vn):

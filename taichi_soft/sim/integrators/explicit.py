@@ -225,6 +225,7 @@ class VelocityVerlet(Integrator):
         self._primed = False
 
     def notify_model_changed(self, flags: int):
+        super().notify_model_changed(flags)
         self._primed = False  # the carried force was the old model's
 
     @ti.kernel
