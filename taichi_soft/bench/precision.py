@@ -38,6 +38,7 @@ import math
 
 import numpy as np
 
+from ..sim.error_estimate import rigid_fit_rms
 from .timing import time_one
 
 SAMPLE = 1.0 / 240.0  # [s] centre-of-mass sampling interval (every implicit step divides or is a multiple of it)
@@ -199,22 +200,13 @@ def summary(run: dict) -> dict:
     return {"apex": first_apex(run["times"], h), "rest_height": float(h[-1]), "rest_time": rest_time(run["times"], run["com"])}
 
 
-def kabsch_rms(x: np.ndarray, ref: np.ndarray) -> float:
-    """RMS distance [m] between particles after the best rigid motion of ``x`` onto ``ref``."""
-    a, b = x - x.mean(axis=0), ref - ref.mean(axis=0)
-    u, _, vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(u @ vt))
-    rot = u @ np.diag([1.0, 1.0, d]) @ vt
-    return float(np.sqrt(np.mean(np.sum((a @ rot - b) ** 2, axis=1))))
-
-
 def compare(run: dict, ref: dict) -> dict:
     """Trajectory errors [m] of ``run`` against ``ref`` at the common frames."""
     k = min(len(run["frames"]), len(ref["frames"]))
     if run["diverged"] or k < len(ref["frames"]):
         return {"com_error": math.nan, "shape_error": math.nan}
     com = np.linalg.norm(run["frames"].mean(axis=1) - ref["frames"].mean(axis=1), axis=1).max()
-    shape = max(kabsch_rms(a, b) for a, b in zip(run["frames"], ref["frames"]))
+    shape = max(rigid_fit_rms(b, a) for a, b in zip(run["frames"], ref["frames"]))  # a onto b
     return {"com_error": float(com), "shape_error": float(shape)}
 
 
