@@ -1,8 +1,8 @@
-"""The benchmarks' timing helper (taichi_soft/bench/timing.py) with fake clocks and callables:
+"""The benchmarks' timing helper (taichi_soft/timing.py) with fake clocks and callables:
 warm-up not timed, setup not timed, sync around each clock reading, round-robin order, medians."""
 import pytest
 
-from taichi_soft.bench.timing import Candidate, time_candidates, time_one
+from taichi_soft.timing import Candidate, time_candidates, time_one
 
 
 class FakeClock:

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..sim.scene import load_scene
 from ..sim.simulation import Simulation
-from .timing import time_one
+from ..timing import time_one
 
 # The two cases of the work-precision study: (scene, overrides, end time [s]).
 CASES = {

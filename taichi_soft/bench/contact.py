@@ -81,7 +81,7 @@ def cost(integrator: str, dt: float, horizon: float, repeats: int) -> dict:
     from ..sim.integrators import names
     from ..sim.scene import load_scene
     from ..sim.simulation import Simulation
-    from .timing import Candidate, time_candidates
+    from ..timing import Candidate, time_candidates
 
     steps = int(round(horizon / dt))
     sims = {on: Simulation(load_scene("pile", [f"solver.body_contact={'true' if on else 'false'}"],

@@ -31,7 +31,7 @@ import os
 
 import numpy as np
 
-from .timing import Candidate, time_candidates
+from ..timing import Candidate, time_candidates
 
 VARIANTS = ("yardstick", "csr_branch", "csr", "rows", "rows_lookup", "rows_table", "lookup_fields", "lookup_check", "rows_check")
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import taichi as ti
 
 from ..sim.forces import SLAB_STRIDE
-from .timing import time_one
+from ..timing import time_one
 
 
 # -- memory bandwidth bound ------------------------------------------------------------------------

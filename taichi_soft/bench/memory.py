@@ -45,7 +45,7 @@ def measure_peaks(jobs: list[tuple[str, str, int]], arch: str = "cpu", progress=
         for s in scene_sets(n, integrator):
             argv += ["--set", s]
         key = f"memory run n={n} {integrator} {precision}"
-        tasks.append(Task(key, "taichi_soft.bench.peak_run:peak_of_run", {"argv": argv, "arch": arch}))
+        tasks.append(Task(key, "taichi_soft.peak_run:peak_of_run", {"argv": argv, "arch": arch}))
         job_of[key] = (integrator, precision, n)
 
     def finished(key, result):

@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 
 from ..errors import UserError
-from .timing import Candidate, no_sync, time_candidates, time_one
+from ..timing import Candidate, no_sync, time_candidates, time_one
 
 N = 20
 RESOLUTION = (1280, 720)

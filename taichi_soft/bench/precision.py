@@ -39,7 +39,7 @@ import math
 import numpy as np
 
 from ..sim.error_estimate import rigid_fit_rms
-from .timing import time_one
+from ..timing import time_one
 
 SAMPLE = 1.0 / 240.0  # [s] centre-of-mass sampling interval (every implicit step divides or is a multiple of it)
 FRAME = 1.0 / 15.0  # [s] frames at which trajectories are compared (a multiple of every step swept)

@@ -15,7 +15,7 @@ import taichi as ti
 
 from ..sim.scene import load_scene
 from ..sim.simulation import Simulation
-from .timing import time_one
+from ..timing import time_one
 
 
 def measure(integrator: str, n: int, mode: str = "auto", chunk: int | None = None, repeats: int = 5,

@@ -11,7 +11,7 @@ import taichi as ti
 from ..sim.scene import load_scene
 from ..sim.simulation import Simulation
 from .machine_limits import thread_overlap
-from .timing import no_sync, time_one
+from ..timing import no_sync, time_one
 
 REFERENCE_SCENE = ["terrain.kind=none", "body.0.initial_stretch=[1.05, 0.97, 1.0]"]
 RUN_FPS = 30  # output frames per second of the "run" rows (the scene files' default)

@@ -17,7 +17,7 @@ from pathlib import Path
 from ..sim.integrators import REGISTRY
 from . import accuracy, stability
 from .files import write_csv
-from .timing import time_one
+from ..timing import time_one
 
 
 # Largest dt each integrator is swept to in the accuracy study [s] (the rest are log-spaced below;

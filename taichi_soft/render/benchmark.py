@@ -38,8 +38,8 @@ from pathlib import Path
 def _interleaved_ms(stages: dict, repeats: int, warmup: int = 3) -> dict:
     """{name: (wall, process CPU) medians in ms} of each ``stages[name]()``, the stages timed in
     turn, round after round (a load that drifts hits all of them alike); ``ti.sync()`` before
-    each clock read (``bench.timing``)."""
-    from ..bench.timing import Candidate, time_candidates
+    each clock read (``taichi_soft.timing``)."""
+    from ..timing import Candidate, time_candidates
 
     timings = time_candidates({name: Candidate(fn, warmup=lambda fn=fn: [fn() for _ in range(warmup)])
                                for name, fn in stages.items()}, repeats, rotate=False)

@@ -1,6 +1,7 @@
 """The memory study's task (``bench/memory.py``): the CLI's own command in this process, then the
-process's peak memory. A module of its own because it imports the CLI, which imports the studies:
-``memory`` names it only as a task's ``"module:function"`` string.
+process's peak memory. It sits at the CLI's layer because it runs the CLI, two layers above the
+studies: ``bench.memory`` names it only as a task's ``"module:function"`` string, run in a fresh
+process.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ def peak_of_run(argv: list[str], arch: str) -> dict:
     import contextlib
     import resource
 
-    from ..cli import main
+    from .cli import main
 
     with open(os.devnull, "w") as null, contextlib.redirect_stdout(null):
         rc = main(argv)

@@ -1,4 +1,5 @@
-"""The benchmarks' one timing helper: every timed number of ``taichi_soft.bench`` comes from here.
+"""The benchmarks' one timing helper: every timed number of ``taichi_soft.bench`` and of
+``taichi_soft.render.benchmark`` comes from here.
 
 Method, per candidate (a named piece of work):
 
