@@ -10,7 +10,7 @@ The state-sized vectors lie in an SNode tree of their own, each field starting o
 ``ti.field`` places a field in the pending tree behind whatever was allocated just
 before it (a flag, a few group parameters), at an address that depends on them. There, the
 gathered semi-implicit Euler step at n = 40 in f64 ran 15-25 % slower than with the same four
-arrays page-aligned in a tree of their own, in one process, interleaved (``bench.kernel_study``;
+arrays page-aligned in a tree of their own, in one process, interleaved (``studies/kernel_study.py``;
 docs/benchmarks/README.md, "Array placement"). Which placements are slow was not pinned down;
 page-aligned arrays were fast in every arrangement tried.
 """

@@ -77,7 +77,7 @@ def auto_strategy(arch: str, fast_math: bool) -> str:
 
 def rows_look_up_groups(real_bytes: int) -> bool:
     """Whether the gather's rows read each slot's (k, kd) through its group (f64) instead of a
-    per-slot copy (f32). ``bench.kernel_study``, n = 40, one thread (docs/benchmarks/README.md),
+    per-slot copy (f32). ``studies/kernel_study.py``, n = 40, one thread (docs/benchmarks/README.md),
     against the plain CSR kernel: f64 copies 0.74x, lookups 1.17x (16 bytes a slot of copies);
     f32 copies 1.18x, lookups 1.07x (the two extra gathers cost more than 8 bytes save)."""
     return real_bytes == 8

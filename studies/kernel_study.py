@@ -1,6 +1,6 @@
 """Why the engine's gather was slower than a plain Taichi kernel: one change at a time.
 
-    python -m taichi_soft.bench.kernel_study [--n 40] [--precision f32] [--no-fast-math] [--threads 1]
+    python -m studies.kernel_study [--n 40] [--precision f32] [--no-fast-math] [--threads 1]
 
 Times, in one process and interleaved (one repeat of each in turn, medians), semi-implicit Euler
 steps of the same stretched n^3 cube (no terrain) with gather kernels that differ in one thing:
@@ -31,7 +31,7 @@ import os
 
 import numpy as np
 
-from ..timing import Candidate, time_candidates
+from taichi_soft.timing import Candidate, time_candidates
 
 VARIANTS = ("yardstick", "csr_branch", "csr", "rows", "rows_lookup", "rows_table", "lookup_fields", "lookup_check", "rows_check")
 
@@ -40,9 +40,9 @@ def _kernels(sim):
     """{variant: step(xo, vo, xn, vn)} on the simulation's model, plus its helper fields."""
     import taichi as ti
 
-    from ..sim.forces import spring_force
-    from ..sim.integrators.base import _not_finite
-    from ..sim.rows import SpringRows
+    from taichi_soft.sim.forces import spring_force
+    from taichi_soft.sim.integrators.base import _not_finite
+    from taichi_soft.sim.rows import SpringRows
 
     m = sim.model
     m.ensure_adjacency()
@@ -134,18 +134,18 @@ def main(argv=None) -> int:
     p.add_argument("--rounds", type=int, default=7)
     p.add_argument("--free-threads", action="store_true", help="leave Taichi's pool workers unpinned (cpu_threads.py)")
     a = p.parse_args(argv)
-    from .. import runtime
+    from taichi_soft import runtime
 
     runtime.init("cpu", a.precision, fast_math=not a.no_fast_math, cpu_max_num_threads=a.threads,
                  pin_threads=not a.free_threads)
-    from .. import cpu_threads
+    from taichi_soft import cpu_threads
 
     cpu_threads.place(True)  # every kernel here is an explicit step: pinned from the first (unless --free-threads)
     import taichi as ti
 
-    from ..sim.scene import load_scene
-    from ..sim.simulation import Simulation
-    from .speed_worker import REFERENCE_SCENE
+    from taichi_soft.sim.scene import load_scene
+    from taichi_soft.sim.simulation import Simulation
+    from taichi_soft.bench.speed_worker import REFERENCE_SCENE
 
     def sim_for(forces):
         scene = load_scene("plane", [f"body.0.n={a.n}", *REFERENCE_SCENE])
