@@ -15,7 +15,8 @@ import taichi as ti
 
 from taichi_soft.sim.footprint import VEC, per_particle
 from taichi_soft.sim.integrators import REGISTRY, make_integrator
-from taichi_soft.sim.integrators.base import ExplicitConfig, Integrator
+from taichi_soft.sim.integrators import linear_stability
+from taichi_soft.sim.integrators.base import ExplicitConfig, Integrator, register
 from taichi_soft.sim.integrators.options import choice, int_at_least, option
 
 
@@ -28,6 +29,9 @@ class ToyEuler(Integrator):
     force_evals = 1
     description = "toy symplectic Euler with substeps (a test's integrator)"
     BUFFERS = {"last_accel": per_particle("the last substep's acceleration [m/s^2]", VEC)}  # allocated by the base
+    # With its default single substep it is symplectic Euler, whose linear stability it shares.
+    amplification = staticmethod(linear_stability.symplectic_euler)
+    sweep_dt_cap = 2e-3
 
     @dataclass(frozen=True)
     class Config(ExplicitConfig):
@@ -141,3 +145,24 @@ def test_the_accuracy_sweep_measures_it(toy):
     assert [r["integrator"] for r in toy_rows] == ["toy_euler"] * 2 and not any(r["diverged"] for r in toy_rows)
     assert [r["error_final"] for r in toy_rows] == [r["error_final"] for r in rows["semi_implicit_euler"]]
     assert 0.8 < accuracy.fitted_order(toy_rows, "toy_euler") < 1.3
+
+
+def test_a_method_without_its_facts_is_refused(toy):
+    """A registered method declares its stability (the divergence hint) and its sweep's largest step:
+    without them ``register`` refuses it by name instead of degrading those silently."""
+    bare = type("Bare", (ToyEuler,), {"name": "bare", "amplification": None, "sweep_dt_cap": None})
+    with pytest.raises(TypeError, match="'bare' .*does not declare amplification, sweep_dt_cap"):
+        register(bare)
+    assert "bare" not in REGISTRY
+    assert register(ToyEuler) is ToyEuler  # the toy declares both
+
+
+def test_the_divergence_hint_knows_its_stability_limit(toy):
+    """The hint's limit for the toy is its own matrix's, here semi-implicit Euler's (one substep)."""
+    from physics_helpers import build
+
+    model, _ = build(n=4)
+    w2, ratios = linear_stability.scene_modes(model)
+    limit = linear_stability.stable_limit("toy_euler", w2, ratios)
+    assert limit == linear_stability.stable_limit("semi_implicit_euler", w2, ratios)
+    assert 0 < limit < 2.1 / w2 ** 0.5  # symplectic Euler: h w < 2 without dampers

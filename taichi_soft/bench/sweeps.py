@@ -20,10 +20,6 @@ from .files import write_csv
 from ..timing import time_one
 
 
-# Largest dt each integrator is swept to in the accuracy study [s] (the rest are log-spaced below;
-# velocity Verlet: its linear stability limit is about half of semi-implicit Euler's, docs/benchmarks/VERLET.md).
-DT_CAP = {"explicit_euler": 2e-3, "semi_implicit_euler": 2e-3, "velocity_verlet": 1e-3, "midpoint": 4e-3, "rk4": 6e-3}
-DT_CAP_IMPLICIT = 2e-2
 TERRAINS = ("plane", "tilted_plane", "sphere", "bowl")
 DT_LO = 2.5e-4  # [s] lower end of each bisection: every method here is stable at it on the default cube
 
@@ -56,7 +52,8 @@ def run_accuracy(quick: bool, executor=None) -> dict:
     frames = 10
     repeats = 1 if quick else 3
     out = {"cases": {}, "interrupted": False, "failed": {}}
-    sweeps = {case: {name: accuracy.step_sizes(t_end, frames, DT_CAP.get(name, DT_CAP_IMPLICIT), count) for name in REGISTRY}
+    sweeps = {case: {name: accuracy.step_sizes(t_end, frames, cls.sweep_dt_cap, count)
+                     for name, cls in REGISTRY.items()}
               for case, (_, _, t_end) in accuracy.CASES.items()}
     refs, out["interrupted"], out["failed"] = _sweep(
         [Task(f"reference/{case}", "taichi_soft.bench.sweeps:accuracy_reference_task",

@@ -97,6 +97,13 @@ class Integrator:
     # The largest step [s] the gallery gives it by default (None: the scene's dt), for a method whose
     # stability limit on the default scenes is below their dt.
     largest_default_dt = None
+    # Facts every registered method declares (``register`` refuses a class without them):
+    # ``amplification(h, jac)``, one step's matrix on a linear mode (linear_stability.py: the
+    # divergence hint's stability limits), a staticmethod; None only for an A-stable implicit method.
+    amplification = None
+    # ``sweep_dt_cap`` [s]: the largest step the accuracy sweep tries (bench/sweeps.py), about the
+    # method's stability limit on the sweep's cases.
+    sweep_dt_cap = None
     # Whether its parallel launches want Taichi's CPU pool workers pinned one to a core (cpu_threads.py:
     # an explicit step's few long loops ran 1.5-2x faster so; the implicit solvers' many short ones slower).
     pins_pool_workers = True
@@ -386,6 +393,13 @@ REGISTRY: dict[str, type] = {}
 
 
 def register(cls):
-    """Class decorator: make an integrator available by its ``name``."""
+    """Class decorator: make an integrator available by its ``name``. Refuses (``TypeError``) a
+    class that does not declare the facts the product needs of every method (``Integrator``:
+    ``amplification`` unless implicit, ``sweep_dt_cap``)."""
+    missing = [fact for fact, absent in (("amplification", cls.amplification is None and not cls.implicit),
+                                         ("sweep_dt_cap", cls.sweep_dt_cap is None)) if absent]
+    if missing:
+        raise TypeError(f"integrator {cls.name!r} ({cls.__qualname__}) does not declare {', '.join(missing)} "
+                        "(see taichi_soft.sim.integrators.base.Integrator)")
     REGISTRY[cls.name] = cls
     return cls

@@ -18,6 +18,7 @@ import taichi as ti
 from ..allocation import page_aligned_vectors
 from ..footprint import VEC, Buffers, FieldCounts, per_particle
 from .base import MB, Integrator, register
+from . import linear_stability
 
 
 @ti.data_oriented
@@ -137,6 +138,8 @@ class ExplicitEuler(ExplicitRungeKutta):
     """x_{n+1} = x_n + dt v_n;  v_{n+1} = v_n + dt a(x_n, v_n). First order."""
 
     name = "explicit_euler"
+    amplification = staticmethod(linear_stability.taylor(1))
+    sweep_dt_cap = 2e-3
     BASE_BYTES = 138 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 1
     force_evals = 1
@@ -151,6 +154,8 @@ class SemiImplicitEuler(Integrator):
     """v_{n+1} = v_n + dt a(x_n, v_n);  x_{n+1} = x_n + dt v_{n+1}. First order, symplectic."""
 
     name = "semi_implicit_euler"
+    amplification = staticmethod(linear_stability.symplectic_euler)
+    sweep_dt_cap = 2e-3
     BASE_BYTES = 138 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 1
     force_evals = 1
@@ -201,6 +206,8 @@ class VelocityVerlet(Integrator):
     """
 
     name = "velocity_verlet"
+    amplification = staticmethod(linear_stability.velocity_verlet)
+    sweep_dt_cap = 1e-3  # its linear stability limit is about half of semi-implicit Euler's
     # measured (memory.py), peak RSS cold / warm cache: 147 / 127 MB, beside semi-implicit Euler's 150 / 129
     BASE_BYTES = 138 * MB
     order = 2
@@ -271,6 +278,8 @@ class Midpoint(ExplicitRungeKutta):
     """Explicit midpoint: slope evaluated at y_n + dt/2 f(y_n). Second order."""
 
     name = "midpoint"
+    amplification = staticmethod(linear_stability.taylor(2))
+    sweep_dt_cap = 4e-3
     BASE_BYTES = 142 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 2
     force_evals = 2
@@ -285,6 +294,8 @@ class RK4(ExplicitRungeKutta):
     """Classic fourth-order Runge-Kutta."""
 
     name = "rk4"
+    amplification = staticmethod(linear_stability.taylor(4))
+    sweep_dt_cap = 6e-3
     BASE_BYTES = 147 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 4
     force_evals = 4

@@ -22,8 +22,13 @@ import numpy as np
 
 from .base import REGISTRY
 
+# One step of each explicit method maps a mode (x, v) of J = [[0, 1], [-w2, -g]] by its
+# amplification matrix, which each integrator class declares (``Integrator.amplification``): a
+# method carrying more state than (x, v) maps all of it. These are the shipped methods' matrices.
 
-def _taylor(order):
+
+def taylor(order):
+    """Explicit Runge-Kutta of ``order`` stages = order: the degree-``order`` Taylor polynomial of h J."""
     def amplification(h, jac):
         a = np.eye(2)
         term = np.eye(2)
@@ -34,13 +39,13 @@ def _taylor(order):
     return amplification
 
 
-def _symplectic_euler(h, jac):
+def symplectic_euler(h, jac):
     """v1 = v + h (J x) ; x1 = x + h v1 (``semi_implicit_euler``)."""
     w2, g = -jac[1, 0], -jac[1, 1]
     return np.array([[1 - h * h * w2, h * (1 - h * g)], [-h * w2, 1 - h * g]])
 
 
-def _velocity_verlet(h, jac):
+def velocity_verlet(h, jac):
     """One step of ``velocity_verlet`` on the state (x, v, a) it carries (a: the last force, taken
     at the predicted velocity): vh = v + h/2 a, x1 = x + h vh, a1 = J (x1, vh + h/2 a),
     v1 = vh + h/2 a1. A 3 x 3 matrix: the carried force is a state of the method."""
@@ -50,18 +55,6 @@ def _velocity_verlet(h, jac):
     a1 = -w2 * x1 - g * vp
     v1 = np.array([0.0, 1.0, h / 2]) + (h / 2) * a1
     return np.array([x1, v1, a1])
-
-
-# Amplification matrix of one step of each explicit method on J = [[0, 1], [-w2, -g]] (explicit
-# Runge-Kutta methods: the degree-s Taylor polynomial of h J, their stability function); a method
-# carrying more state than (x, v) maps all of it.
-AMPLIFICATION = {
-    "explicit_euler": _taylor(1),
-    "midpoint": _taylor(2),
-    "rk4": _taylor(4),
-    "semi_implicit_euler": _symplectic_euler,
-    "velocity_verlet": _velocity_verlet,
-}
 
 
 def stiffest_w2(x0: np.ndarray, mass: np.ndarray, pairs: np.ndarray, k: np.ndarray, iterations: int = 100) -> float:
@@ -98,7 +91,7 @@ def stiffest_w2(x0: np.ndarray, mass: np.ndarray, pairs: np.ndarray, k: np.ndarr
 
 def is_stable(name: str, h: float, w2_max: float, ratios: tuple[float, float], samples: int = 200) -> bool:
     """Whether ``name`` at step ``h`` [s] is linearly stable on every mode up to ``w2_max``."""
-    amp = AMPLIFICATION[name]
+    amp = REGISTRY[name].amplification
     for w2 in w2_max * np.geomspace(1e-4, 1.0, samples):
         for c in ratios:
             jac = np.array([[0.0, 1.0], [-w2, -c * w2]])
@@ -112,10 +105,10 @@ def stable_limit(name: str, w2_max: float, ratios: tuple[float, float]) -> float
     methods (backward Euler is A-stable); None for a method this module does not know; 0 if no
     step is stable."""
     cls = REGISTRY.get(name)
-    if (cls is not None and cls.implicit) or w2_max <= 0:
-        return math.inf
-    if name not in AMPLIFICATION:
+    if cls is None:
         return None
+    if cls.implicit or w2_max <= 0:
+        return math.inf
     lo, hi = 0.0, 4.0 / math.sqrt(w2_max)  # no explicit method here is stable at h w = 4
     while hi - lo > 0.005 * hi:
         mid = 0.5 * (lo + hi)

@@ -61,6 +61,7 @@ class ImplicitIntegrator(Integrator):
     """
 
     implicit = True
+    sweep_dt_cap = 2e-2  # A-stable: the sweep reaches frame steps
     pins_pool_workers = False  # its step's many short loops ran slower pinned (cpu_threads.py)
     order = 1
     force_evals = 0
