@@ -18,74 +18,33 @@ PRECISIONS = ("f32", "f64")
 _current: dict | None = None
 
 
-# Fast math lets the compiler reassociate, contract multiply-adds into FMA and assume no NaN or
-# inf. On Taichi 1.7's CPU backend it changes little (measured 0.96-1.06x per CPU second; in the
-# x86 code only the FMA contraction shows, square roots and divisions stay exact); GPU backends
-# were not measured (no GPU lent). The command line turns it on for run, compare and demo
-# (FAST_MATH_CLI_DEFAULT): it was never measured slower, results differ from IEEE arithmetic at
-# the rounding level only (tests/test_fast_math.py), and the divergence check reads NaN/inf from
-# the bits, which fast math cannot optimise away. Library callers (the tests, the accuracy and
-# stability studies) get it off unless they ask: convergence-order fits and the tiny-step
-# reference solutions compare errors down to 1e-12 m, where every rounding must be IEEE's.
+# Fast math on for run/compare/demo, off for library callers, whose error fits need IEEE rounding
+# (docs/decisions/fast-math-on-the-command-line.md).
 FAST_MATH_CLI_DEFAULT = True
 
-# The command line's processes pin each worker of Taichi's CPU thread pool to its own core while an
-# explicit method steps (cpu_threads.py: unpinned, the 2-core VM ran two-thread explicit steps at
-# n = 40 barely faster than one thread; the implicit solvers ran slower pinned). Library callers (the
-# tests) leave them free unless they ask: finding the workers takes a 0.1-s loop, once per process
-# that launches parallel explicit steps.
+# The command line pins each CPU pool worker to its own core while explicit methods step; library
+# callers leave them free unless they ask (docs/decisions/thread-pinning.md).
 PIN_THREADS_CLI_DEFAULT = True
 
-# Taichi's own IR passes (``advanced_optimization``) are most of a kernel's compile time. Runs are
-# optimised by default (the speed studies measure what users get); ``TAICHI_SOFT_OPTIMIZE=0`` turns
-# the passes off for work dominated by compiling: the test suite (tests/conftest.py sets it, child
-# processes inherit it) and short experiments. Measured 2026-12-06 on the 2-core Intel Xeon VM,
-# default cube on the plane, cold cache, with the passes (less the CFG one, below) / without them:
-# implicit_euler compiles in 3.4 / 1.9 s of CPU and steps 1.25x slower without, fast_mass_spring
-# 9.3 / 3.9 s and 1.29x slower (75 steps at 1/30 s, one run each on a busy machine).
+# Taichi's IR passes are most of a compile: runs keep them, TAICHI_SOFT_OPTIMIZE=0 (the test suite,
+# short experiments) turns them off (docs/decisions/ir-passes-off-in-tests.md).
 OPTIMIZE_ENV = "TAICHI_SOFT_OPTIMIZE"
 
-# Of those passes, the control-flow-graph one (store-to-load forwarding and dead-store elimination
-# over the whole kernel) grows faster than the kernel (Taichi issue #1785), and the implicit solvers'
-# one-launch step is one large kernel. Measured 2026-12-06 on the 2-core Intel Xeon VM, default cube
-# on the plane, f64, cold cache, CPU seconds to compile (first step) with / without it:
-# implicit_euler 18.7 / 3.2, fast_mass_spring 64.7 / 11.4, rk4 0.88 / 0.57, semi-implicit Euler
-# 0.42 / 0.30; steps/s without it against with it (3 rounds, interleaved processes, medians),
-# implicit_euler 1.06x, fast_mass_spring 1.16x, rk4 n = 10 / 40 1.15x / 0.93x, semi-implicit Euler
-# f64 n = 10 / 40 0.99x / 0.94x, f32 with fast math n = 10 0.99x (rounds on this VM differ by up
-# to 30 %); at one thread beside one other busy process, f32, fast math, n = 40, no terrain, 4 rounds:
-# 1.02x. No slowdown beyond the noise; and bit-identical states and solver statistics with fast
-# math off (scripts/same_answers.py --stats, TAICHI_SOFT_OPTIMIZE=1; with fast math on they may
-# differ at rounding level, as fast math allows). So optimised runs skip that pass.
+# The CFG pass grows faster than the kernel (Taichi #1785) and buys no speed here: optimised runs
+# skip it (docs/decisions/skip-the-cfg-pass.md).
 SKIP_CFG_PASS = True
 
-# Taichi's loop-invariant caching of global loads (``cache_loop_invariant_global_vars``) reads stale
-# values where a loop also writes them through another access: upstream issues #8576 and #8578, open
-# for 1.7.4. It hit us in the implicit solvers' one-launch step: a whole-vector read after atomics on
-# the components returned the step's first values, so a rebuilt pair list was sized for the wrong
-# moves and missed pairs in contact (scripts/taichi_stale_vector_read.py; issue 23). With the pass
-# off that script reads right. Measured 2026-12-07 on the 2-core Intel Xeon VM, steps/s with the pass
-# on / off, two rounds of one process per run, alternating: semi-implicit Euler f32 n = 10 serial
-# 10068 / 9981 and 9860 / 10363, n = 40 parallel 258 / 258 and 243 / 274; RK4 n = 10 2630 / 2569
-# and 2515 / 2474; implicit_euler default cube 192 / 197 and 183 / 176; fast_mass_spring pile 125 /
-# 124 and 122 / 120: no difference beyond the noise. Off on every backend (on a GPU not measured).
+# Taichi's loop-invariant caching of global loads reads stale values (Taichi #8576, #8578, open for
+# 1.7.4; scripts/taichi_stale_vector_read.py): off everywhere (docs/decisions/loop-invariant-cache-off.md).
 CACHE_LOOP_INVARIANTS = False
-# Taichi's offline cache does not key kernels by that option: a kernel cached with the pass on was
-# loaded with it off and read stale all the same (measured with the script above, 2026-12-07). So the
-# kernels compiled with it off live in a cache directory of their own, beside Taichi's (the user's
-# TI_OFFLINE_CACHE_FILE_PATH, else Taichi's default, taken before any ti.init changes it).
+# Taichi's offline cache does not key kernels by that option, so kernels compiled with it off live in
+# a cache directory of their own beside Taichi's (the user's TI_OFFLINE_CACHE_FILE_PATH, else Taichi's
+# default, taken before any ti.init changes it).
 NO_LOOP_INVARIANT_SUFFIX = "-no-loop-invariants"
 _TAICHI_CACHE_DIR = os.environ.get("TI_OFFLINE_CACHE_FILE_PATH") or ti.lang.impl.default_cfg().offline_cache_file_path
 
-# Taichi's offline kernel cache (~/.cache/taichi) evicts its least recently used quarter whenever it
-# passes 100 MiB, checked as each process exits. The kernels of every integrator, terrain and
-# precision take more than that (the test suite leaves 115 MiB), so at the default every process
-# exit evicted kernels the next process compiled again: measured 2026-12-06 on the 2-core VM, the
-# by_stiffness test took 31 s in a suite run against 13 s with its kernels cached. At 1 GiB the
-# cache held 339 MiB after one suite run and 457 MiB after two, with nothing evicted. Any process
-# that starts Taichi at the default limit evicts, even with ``offline_cache=False`` (measured
-# 2026-12-06: 4956 cache files to 3718 after a bare ``ti.init``), so every process of the project,
-# the tests' probes included, starts Taichi through ``init``.
+# Taichi's offline cache evicts a quarter past 100 MiB, and our kernels take more: every process
+# of the project starts Taichi through ``init`` with this limit (docs/decisions/kernel-cache-size.md).
 KERNEL_CACHE_BYTES = 1 << 30
 
 
