@@ -9,6 +9,7 @@ left; a sweep keeps what finished).
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 
@@ -50,6 +51,11 @@ def main(argv=None) -> int:
         signum = e.signum if isinstance(e, Terminated) else signal.SIGINT
         print(f"interrupted ({signal.Signals(signum).name}); no output was written or replaced", file=sys.stderr)
         return 128 + signum
+    except BrokenPipeError:
+        # The reader of stdout went away (``main.py list | head``): stop quietly, as a shell tool does,
+        # and keep Python's exit-time flush from raising the same error again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
