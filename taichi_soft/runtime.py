@@ -63,7 +63,7 @@ SKIP_CFG_PASS = True
 # values where a loop also writes them through another access: upstream issues #8576 and #8578, open
 # for 1.7.4. It hit us in the implicit solvers' one-launch step: a whole-vector read after atomics on
 # the components returned the step's first values, so a rebuilt pair list was sized for the wrong
-# moves and missed pairs in contact (scripts/taichi_stale_vector_read.py; issue 23). With the pass
+# moves and missed pairs in contact (scripts/taichi_stale_vector_read.py). With the pass
 # off that script reads right. Measured 2026-12-07 on the 2-core Intel Xeon VM, steps/s with the pass
 # on / off, two rounds of one process per run, alternating: semi-implicit Euler f32 n = 10 serial
 # 10068 / 9981 and 9860 / 10363, n = 40 parallel 258 / 258 and 243 / 274; RK4 n = 10 2630 / 2569
