@@ -9,7 +9,7 @@ steps of the same stretched n^3 cube (no terrain) with gather kernels that diffe
   (CSR rows, ``d / length``, no zero-length guard, k and kd per entry);
 * ``csr_branch``: the engine's old spring loop: ``if length > 0`` around the force (CSR rows);
 * ``csr``: the same without the branch (``length + TINY``, forces.spring_force);
-* ``rows``: padded rows of constant length (rows.py), the engine's loop since issue 25;
+* ``rows``: padded rows of constant length (rows.py), the engine's loop;
 * ``rows_lookup``: the same, k and kd looked up through the spring group per slot;
 * ``rows_table``: the same rows with 8 bytes a slot instead of 16: the other end and a kind, which
   indexes a small table of (rest, k, kd), one per distinct (group, rest length) of the slots;
@@ -22,7 +22,7 @@ steps of the same stretched n^3 cube (no terrain) with gather kernels that diffe
 * the engine itself (``engine gather``, ``engine scatter``) through ``Simulation.advance``.
 
 Prints steps per second of wall time and of CPU time (the steadier measure on a shared machine)
-and each ratio to the yardstick. docs/benchmarks/README.md, "Speed (issue 25)", has the
+and each ratio to the yardstick. docs/benchmarks/README.md, "Speed: why the engine was slower", has the
 results and the generated code behind them (``ti.init(print_kernel_asm=True)``).
 """
 

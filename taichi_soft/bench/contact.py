@@ -1,4 +1,4 @@
-"""``python main.py bench contact``: body-body contact, how it slides and what it costs (issue 23).
+"""``python main.py bench contact``: body-body contact, how it slides and what it costs.
 
 * **slide**: a 1 m cube (n = 4) on a 3 m cube (n = 10, the same 1/3 m lattice spacing) resting on
   the plane, its faces inside the lower one's top face (centre x = -0.5 m of [-1.5, 1.5] m), settled

@@ -1,4 +1,4 @@
-"""``python main.py bench energy``: the implicit solvers' energy matrix (issues 11, 22, 23).
+"""``python main.py bench energy``: the implicit solvers' energy matrix.
 
 An implicit step minimises an objective whose value bounds the energy the step ends with, so on
 undamped-or-damped soft bodies with inelastic contact the total energy must never rise above its

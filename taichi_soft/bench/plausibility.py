@@ -1,4 +1,4 @@
-"""Plausibility at the frame steps people use interactively (issue 22): 1/30 and 1/60 s.
+"""Plausibility at the frame steps people use interactively: 1/30 and 1/60 s.
 
 ``bench precision`` asks how far a trajectory is from the truth; at a frame step a viewer asks
 whether the motion looks physical. Per implicit solver, settings (``precision.TOLERANCES``),

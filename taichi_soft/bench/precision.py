@@ -1,4 +1,4 @@
-"""Work-precision at equal error (issue 22): which family is cheaper for a given accuracy, per stiffness.
+"""Work-precision at equal error: which family is cheaper for a given accuracy, per stiffness.
 
 Cases (a cube of ``n``^3 particles, edge ``size`` [m], 1 kg per particle, default springs scaled by
 the stiffness factor, the scenes' contact: restitution 0.8, mu 0.3):

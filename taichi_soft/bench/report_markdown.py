@@ -156,7 +156,7 @@ def speed_markdown(result: dict) -> str:
     return "\n".join(out)
 
 
-GOALS = (  # issues 12 and 25: (label, numerator row, denominator row, goal ratio)
+GOALS = (  # the speed goals: (label, numerator row, denominator row, goal ratio)
     ("f32 + fast math / Warp CPU f32, n = 10", dict(group="n10", kind="engine", precision="f32", fast_math=True),
      dict(group="n10", kind="warp", precision="f32", arch="cpu"), 3.0),
     ("f32 through run (plane) / Warp CPU f32, n = 10", dict(group="n10", kind="run", precision="f32"),

@@ -22,7 +22,7 @@ from ..sim.simulation import Simulation
 SEED_TABLE = {"explicit_euler": 0.0020, "midpoint": 0.0045, "rk4": 0.0030}  # the seed's plane results [s]
 
 # The stiffness sweep (multiples of the scene's spring stiffness) and the largest step tried [s]:
-# from x1, where explicit methods are cheapest, to x1000, where they must crawl (issue 11).
+# from x1, where explicit methods are cheapest, to x1000, where they must crawl.
 STIFFNESS_SCALES = (1.0, 10.0, 100.0, 1000.0)
 QUICK_STIFFNESS_SCALES = (1.0, 10.0)
 DT_MAX = 0.1

@@ -1,4 +1,4 @@
-"""The verdict of ``bench precision`` (issue 22): Pareto fronts of each family, the cost of each at
+"""The verdict of ``bench precision``: Pareto fronts of each family, the cost of each at
 equal error (log-log interpolation, no extrapolation), the stiffness from which implicit wins, and
 the Markdown of the whole study (PRECISION.md, REPORT.md's section).
 

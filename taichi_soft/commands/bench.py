@@ -12,7 +12,7 @@ def add_parser(sub):
     p_bench = sub.add_parser("bench", help="benchmarks: work-precision, stability, kernel speed, full report")
     p_bench.add_argument("study", choices=["accuracy", "precision", "stability", "speed", "memory", "report", "mesh",
                                            "energy", "contact"],
-                         help="what to measure; precision: work-precision at equal error (issue 22); report runs accuracy, "
+                         help="what to measure; precision: work-precision at equal error; report runs accuracy, "
                               "precision, stability, speed and memory and writes REPORT.md; mesh: the mesh-body "
                               "goals (build time, frame cost), MESH.md; energy: the implicit solvers' energy "
                               "matrix (terrains, stiffness, steps, two-body scenes), ENERGY.md; contact: a cube sliding on a cube "

@@ -25,7 +25,7 @@ from .rows import SpringRows
 
 # Added to a spring's length before dividing by it: a zero-length spring then has direction 0
 # (and no force) instead of NaN, with no branch in the spring loop (a branch there keeps LLVM
-# from vectorising the gather loop: docs/benchmarks/README.md, "Speed (issue 25)").
+# from vectorising the gather loop: docs/benchmarks/README.md, "Speed: why the engine was slower").
 # Below every real length's rounding (f32: lengths above ~1e-22 m are unchanged), and its
 # inverse is finite in f32, so fast math's no-inf assumption holds.
 TINY = 1e-30
@@ -67,7 +67,7 @@ def auto_strategy(arch: str, fast_math: bool) -> str:
 
     GPU: gather (the scatter's slab passes would run one slab per thread). CPU with fast math:
     gather, whose padded rows LLVM vectorises: 1.5x the scatter at one thread in f32, as fast in
-    f64 at n = 40 (``rows_look_up_groups``), no slab passes (docs/benchmarks/README.md, issue 25).
+    f64 at n = 40 (``rows_look_up_groups``), no slab passes (docs/benchmarks/README.md, "Speed").
     CPU without fast math: nothing vectorises; the scatter (each spring once) is 1.3x the gather.
     """
     if arch != "cpu":

@@ -5,7 +5,7 @@ springs any particle has; 32 inside a lattice of n >= 5): the other end, the res
 group (``model.spring_group``) and (k [N/m], kd [N s/m]) copied from the group. Unused slots are
 padding: a spring from the particle to itself of rest length 0, whose force is exactly zero
 (``forces.spring_force`` of d = 0 is 0, with no NaN). A loop over a row then has a constant trip
-count, which is what lets LLVM vectorise it whole (docs/benchmarks/README.md, issue 25): a CSR
+count, which is what lets LLVM vectorise it whole (docs/benchmarks/README.md, "Speed"): a CSR
 row of varying length left every particle with fewer than 32 springs (the lattice's surface)
 entirely scalar.
 

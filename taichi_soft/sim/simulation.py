@@ -226,7 +226,7 @@ class Simulation:
 
         Stopping at every output frame costs a launch and a few checks per frame (about 0.3 ms at
         n = 10, where a 30 fps frame of 1 ms steps is 2-2.5 ms of work; docs/benchmarks/README.md,
-        issue 25). Chunks start at 16 steps and double while a launch takes less than
+        "Speed"). Chunks start at 16 steps and double while a launch takes less than
         FREE_RUN_SECONDS, so the progress bar still moves.
         """
         base, chunk = self.steps, 16

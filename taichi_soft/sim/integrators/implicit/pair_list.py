@@ -214,7 +214,7 @@ class PairList(BodyGrid):
         # The box is read back a component at a time, as the atomics wrote it. Read as whole vectors,
         # the optimised one-launch step (serial driver, Taichi 1.7.4's IR passes on) got the values
         # of the step's first list, built along the start paths: a rebuilt list's cells were sized
-        # for the wrong moves and missed pairs in contact (issue 23; reduced in
+        # for the wrong moves and missed pairs in contact (reduced in
         # scripts/taichi_stale_vector_read.py, and the pass at fault is now off everywhere,
         # runtime.CACHE_LOOP_INVARIANTS; tests/test_body_contact_implicit.py runs it optimised).
         extent2 = ti.cast(0.0, float)

@@ -6,7 +6,7 @@ speed). Given to those particles alone, after the solve, a stiff body lost it: t
 had stopped the whole body, the bottom layer alone bounced, and the next steps' springs spread its
 momentum over the body while backward Euler damped the compression wave that, at small explicit
 steps, rebounds the body. A cube dropped flat at stiffness x1000 rose to 1.19 m instead of 5.36 m
-at every step from 1/30 s to 1/480 s (issue 22).
+at every step from 1/30 s to 1/480 s.
 
 Here the bounce is a velocity target of the held particles in a backward-Euler velocity step of
 the whole body over the step h:
@@ -26,7 +26,7 @@ The driver then scales the whole dv by one factor s in [0, 1], the largest for w
 energy it adds fits in the energy the step lost (``StepEnd._bounce_scale``, step_end.py):
 restitution never adds energy the step did not have.
 
-Tried and not kept (issue 22): Poisson's hypothesis, an impulse e times the multiplier the held
+Tried and not kept: Poisson's hypothesis, an impulse e times the multiplier the held
 particle took in the step, given to the body through the same operator with the bouncing
 particles free. Backward Euler's velocity of a held particle is (x_{n+1} - x_n)/h, so the
 multiplier misses the momentum the step's end velocity still carries: a 4^3 cube at x1000 and
