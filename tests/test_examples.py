@@ -36,3 +36,11 @@ def test_rk4_is_closer_to_the_reference_than_semi_implicit_euler():
 def test_every_example_is_tested():
     tested = {"drop_cube.py", "compare_integrators.py"}
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
+
+
+def test_the_readme_python_example_is_drop_cube():
+    """The README shows examples/drop_cube.py's code as it runs here (less the lint markers)."""
+    readme = (ROOT / "README.md").read_text()
+    shown = readme.split("```python\n", 1)[1].split("```", 1)[0]
+    code = (EXAMPLES / "drop_cube.py").read_text().replace("  # noqa: E402", "")
+    assert shown.strip() and shown.strip() in code
