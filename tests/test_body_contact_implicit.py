@@ -1,4 +1,4 @@
-"""Body-body contact inside the implicit step (issue 23): a cube dropped on a cube at frame-sized
+"""Body-body contact inside the implicit step: a cube dropped on a cube at frame-sized
 steps, a head-on collision in free space, a cube sliding on a cube. Small cubes (4^3); one
 simulation per solver and terrain, reused (each new integrator compiles its kernels again)."""
 import json

@@ -180,7 +180,7 @@ def test_frame_schedule_is_exact(total, fps, dt):
 
 
 def test_bench_offers_only_studies_and_no_internal_worker():
-    """Issue 27: the speed study's configurations run as tasks (tasks.py), not through a hidden
+    """The speed study's configurations run as tasks (tasks.py), not through a hidden
     `bench speed-worker` command; every study `bench` accepts is listed in its help."""
     from taichi_soft.cli import build_parser
 
@@ -194,7 +194,7 @@ def test_bench_offers_only_studies_and_no_internal_worker():
 
 
 def test_run_dry_run_says_what_would_be_simulated_and_the_memory(cli, tmp_path):
-    """Issue 24: `run --dry-run` prints the run and the memory estimate, simulates and writes nothing."""
+    """`run --dry-run` prints the run and the memory estimate, simulates and writes nothing."""
     from taichi_soft.sim.memory import estimate
     from taichi_soft.sim.scene import load_scene
 

@@ -1,4 +1,4 @@
-"""The two families share one contact model (issue 22, item 3).
+"""The two families share one contact model.
 
 Each implicit solver, converged (tight tolerances) at a small step, must follow the explicit
 reference -- RK4 at a step far below its stable limit, checked against twice that step -- through a

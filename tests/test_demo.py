@@ -169,7 +169,7 @@ def test_divergence_pauses_with_a_message_and_reset_recovers(fresh):
     fresh.step(500)
     msg = fresh.message
     assert msg and msg.startswith("diverged at t = ") and "explicit_euler" in msg and "dt = 0.01 s" in msg
-    hint = fresh.sim.suggest_dt()  # below explicit Euler's linear stability limit with k = 1e6 (issue 24)
+    hint = fresh.sim.suggest_dt()  # below explicit Euler's linear stability limit with k = 1e6
     assert f"try dt <= {hint:g}" in msg and hint < 1e-4
     assert fresh.settings.paused and fresh.step(10) == 0
     assert fresh.last_measures is not None and np.isfinite(fresh.last_measures["total_energy"])
@@ -629,7 +629,7 @@ def test_replay_refuses_what_it_cannot_play(tmp_path):
 
 
 def test_duration_stops_the_demo_there_and_r_restarts(fresh):
-    """Issue 24: `demo --duration` was accepted and ignored; the simulation now stops at it."""
+    """`demo --duration` was accepted and ignored; the simulation now stops at it."""
     fresh.settings.duration = 0.05
     try:
         assert fresh.step(1000) == 50
@@ -657,7 +657,7 @@ def test_demo_passes_its_duration_to_the_window(monkeypatch):
 
 
 def test_energies_are_shown_as_changes_since_the_start(fresh):
-    """Issue 24: the HUD's energies were totals against y = 0 (kJ of gravity energy that hid the
+    """The HUD's energies were totals against y = 0 (kJ of gravity energy that hid the
     changes); they are now changes since t = 0, in the text and in the plot (legend says so)."""
     pacer = Pacer()
     assert hud.status_lines(fresh, pacer)[2] == "E - E(0) = 0 J = kin 0 + spring 0 + grav 0"

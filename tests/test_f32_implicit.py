@@ -1,4 +1,4 @@
-"""Issue 24: the implicit solvers in f32 at small steps (1 ms), far from the origin.
+"""The implicit solvers in f32 at small steps (1 ms), far from the origin.
 
 They iterated on positions and took v = (x_{n+1} - x_n)/h: near 9 m f32 rounds positions to
 1e-6 m, as much as a 1 ms step's change of motion (h^2 g = 1e-5 m), and the rounding was biased

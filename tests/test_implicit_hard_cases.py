@@ -1,4 +1,4 @@
-"""Acceptance tests of the implicit integrators, the hard cases (issue 11): run-time masses, free
+"""Acceptance tests of the implicit integrators, the hard cases: run-time masses, free
 flight, no energy growth at large steps on every terrain, restitution's threshold.
 
 Its own module (a fresh Taichi runtime, tests/conftest.py): with test_implicit.py's simulations

@@ -1,4 +1,4 @@
-"""Restitution that survives stiffness (issue 22): a stiff cube dropped flat bounces with both
+"""Restitution that survives stiffness: a stiff cube dropped flat bounces with both
 implicit solvers at frame-sized steps, as a rigid body with the terrain's restitution would.
 
 Before, restitution went to the held bottom layer only, after the solve; the next step's stiff

@@ -1,4 +1,4 @@
-"""The implicit solvers' second-order scheme (issue 22): ``solver.scheme = "bdf2"`` against
+"""The implicit solvers' second-order scheme: ``solver.scheme = "bdf2"`` against
 ``"backward_euler"`` (the default), and where BDF2 falls back to backward Euler.
 
 Small cubes: the order and the fallback rules do not depend on size.

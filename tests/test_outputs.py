@@ -1,4 +1,4 @@
-"""Nothing lost, nothing silently ignored (issue 14), through the command line: outputs on a full
+"""Nothing lost, nothing silently ignored, through the command line: outputs on a full
 disk and under SIGTERM, unwritable paths refused before the run, --set as one order-free set,
 requests that cannot be honoured refused."""
 import hashlib
@@ -183,7 +183,7 @@ def test_a_duration_that_is_not_whole_steps_says_what_is_simulated(cli, tmp_path
     assert json.loads(summary.read_text())["sim_time"] == pytest.approx(0.9)
 
 
-# -- issue 24: missing folders, stale temporaries, what a --scene path is -------------------------
+# -- missing folders, stale temporaries, what a --scene path is -------------------------
 @pytest.mark.parametrize("flag,name", [("--video", "x.mp4"), ("--summary", "x.json"), ("--frames", "frames")])
 def test_a_missing_parent_folder_is_refused_not_created(cli, tmp_path, flag, name):
     target = tmp_path / "missing" / "deeper" / name

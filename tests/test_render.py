@@ -332,7 +332,7 @@ def test_springs_and_particles_toggle(renderer):
 def test_overlay_shows_time_and_changes_with_it():
     info = overlay.RunInfo("plane", "rk4", 0.001, "2000 N/m", "60 N s/m")
     first, later = info.lines(0.0, 0.0), info.lines(1.25, -27199.5)
-    # issue 24: the change since t = 0, not the total against y = 0 (88 kJ at the default drop's start)
+    # the change since t = 0, not the total against y = 0 (88 kJ at the default drop's start)
     assert "t =   0.000 s" in first[2] and "E - E(0) = +0.0 J" in first[2] and "rk4" in first[0]
     assert "E - E(0) = -27200 J" in later[2] and overlay.energy_text(-12.34) == "-12.3 J"
     a = np.full((72, 128, 3), 200, np.uint8)

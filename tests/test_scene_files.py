@@ -1,4 +1,4 @@
-"""Issue 24: the shipped scenes' defaults show what they are about."""
+"""The shipped scenes' defaults show what they are about."""
 import pytest
 
 from taichi_soft.sim.scene import load_scene

@@ -1,4 +1,4 @@
-"""Issue 24: an implicit step whose solve fails is counted and reported, never passed off as a result.
+"""An implicit step whose solve fails is counted and reported, never passed off as a result.
 
 A solver whose direction is an ascent direction (the rhs reversed) cannot decrease the step's
 objective: every iteration's line search fails. The driver must count each such step, and

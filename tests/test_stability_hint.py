@@ -1,4 +1,4 @@
-"""Issue 24: after a divergence the hint names a step below the method's linear stability limit for
+"""After a divergence the hint names a step below the method's linear stability limit for
 the scene (not just half the step, which diverged again) and the methods that take the step asked
 for; the hinted step must really be stable, through a landing on the plane."""
 import math

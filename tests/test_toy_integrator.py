@@ -1,4 +1,4 @@
-"""Issue 27's goal: an integrator written in one file (options, buffer table, step) is listed by `list`,
+"""The goal: an integrator written in one file (options, buffer table, step) is listed by `list`,
 accepted by `run`, estimated by the memory check and swept by the benchmark, with no other module
 touched: everything the product needs to know of it, it declares itself.
 

@@ -174,7 +174,7 @@ class ForceEvaluator:
         changed since the last copy (also when written straight into the fields). At the top of
         every step kernel: a serial comparison of the few groups, then a copy loop of zero
         iterations unless something changed (from Python before each ``advance`` it downloaded both
-        fields, most of the ``run`` path's per-frame cost at n = 10; docs/benchmarks, issue 25)."""
+        fields, most of the ``run`` path's per-frame cost at n = 10; docs/benchmarks)."""
         if ti.static(self._keeps_copies()):  # f64 rows read the groups themselves: nothing to keep
             m = self.model
             ti.loop_config(serialize=True)

@@ -236,7 +236,7 @@ class TerrainContact:
         velocity is about 0); below the bounce threshold it keeps what the solve gave it. A skin
         particle approaches with its solved velocity; it is held for the restitution solve, so the
         springs carry its impact to the body. (``Terrain.respond`` reflected it alone, and a stiff
-        body swallowed that: the flat x1000 drop bounced at some steps and not at others, issue 22.)
+        body swallowed that: the flat x1000 drop bounced at some steps and not at others.)
         Slower skin particles are left to ``respond``'s local stop: stopping them through the body
         too moved the converged tilted-plane slide 1.6 cm away from the explicit reference at
         0.1 ms (tests/test_consistency.py), where the local stop keeps it within 6.4 mm."""
