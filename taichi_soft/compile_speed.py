@@ -21,9 +21,7 @@ the innermost ``DECLARATION_FRAMES`` frames of a declaration's stack. The IR and
 compiled kernels are unchanged: the offline cache hits across patched and unpatched runs, and
 ``scripts/same_answers.py`` gives bit-identical final states.
 
-Measured 2026-12-04 on the 2-core VM (AMD EPYC, Python 3.11, f64, ``TAICHI_SOFT_OPTIMIZE=0``),
-the first step of fast_mass_spring on the tilted plane (its compile): 4.5 s -> 3.2 s with a warm
-offline cache, 12.7 s -> 9.7 s cold.
+It takes about a quarter off a compile (docs/decisions/compile-front-end.md).
 
 Only on the Taichi version it was written against: any other version runs Taichi's own code.
 """

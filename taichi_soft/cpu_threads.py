@@ -3,19 +3,15 @@
 Taichi 1.7's CPU backend runs each parallel loop on a pool of worker threads, which the launching
 thread wakes through a condition variable at every launch and which go back to sleep when the loop
 ends. Linux puts a woken thread on the waker's core when it can (wake-affine placement), and after
-most short launches both workers had last run on the same core (sampled from /proc; the scheduler
-was not traced): on the 2-core development VM (2026-12-06, Intel Xeon, Taichi 1.7.4) the two 1-ms
-tasks of one parallel loop ran one after the other (``bench.machine_limits.thread_overlap``: -0.02
-to 0.19 in four processes) unpinned, and at once (0.9-1.0) with each worker pinned to its own core.
-A step kernel at n = 40 launches every 2.5-5 ms, so it paid that wait at every step
-(docs/benchmarks/README.md, "Thread placement"). Pinning only the pool's workers leaves the
-launching (Python) thread and Taichi's compile threads free to move.
+most short launches both workers had last run on the same core: the two tasks of one short
+parallel loop then run one after the other, and a step kernel at n = 40, launched every few ms,
+waits for that at every step. Pinning only the pool's workers leaves the launching (Python) thread
+and Taichi's compile threads free to move.
 
-Pinning is not always faster. The implicit solvers' step is one launch of many short loops
-(gradient, CG iterations, line search), and with their pool pinned it ran slower: implicit_euler at
-n = 16 / 20, parallel, f64, 110-117 / 60-65 steps/s pinned against 161-169 / 72-78 free (one process
-per row, two rounds; docs/benchmarks/README.md). So each integrator says which it wants
-(``Integrator.pins_pool_workers``) and ``Simulation.advance`` places the pool for it (``place``).
+Pinning is not always faster: the implicit solvers' step, one launch of many short loops, ran
+slower pinned. So each integrator says which it wants (``Integrator.pins_pool_workers``) and
+``Simulation.advance`` places the pool for it (``place``). The measurements:
+docs/decisions/thread-pinning.md.
 
 ``want_pinning`` (``runtime.init``) says whether this runtime may pin; the first ``place(True)``
 then finds the workers by what they do (``find_pool_workers``: the threads other than the caller
