@@ -2,7 +2,6 @@
 steps), energy bounded without drift where there are no dampers, and the contact model's impact at
 the crossing time against the analytic bounce of point masses."""
 import numpy as np
-import pytest
 
 from taichi_soft.sim.integrators import make_integrator
 

@@ -50,7 +50,7 @@ def _stages(renderer, kind, view, cam, sim, info, width, height, repeats, tmp):
     """{stage: (wall ms, cpu ms)} for one renderer on one view."""
     from . import overlay
     from .lighting import light_rig
-    from .outputs import BackgroundWriter, VideoFile
+    from .outputs import VideoFile
     from .renderer import BACKGROUND, apply_camera, draw_view
 
     image = renderer.render(view, cam)
