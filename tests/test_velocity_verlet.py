@@ -113,8 +113,9 @@ def test_impact_at_the_crossing_time_keeps_a_stopped_particle_in_the_contact_ban
 
 def test_fitted_order_on_the_benchmarks_smooth_case():
     """The work-precision study's smooth case (the free-floating cube, against its RK4 reference):
-    velocity Verlet's fitted order is 2, semi-implicit Euler's 1, and at the same step (the same
-    work, one force evaluation per step) velocity Verlet's error is the smaller one."""
+    velocity Verlet's fitted order is 2, semi-implicit Euler's 1, and for the same work (two passes
+    over the springs a step against one: semi-implicit Euler at half the step) velocity Verlet's
+    error is the smaller one."""
     from taichi_soft.bench import accuracy
 
     dts = [1e-3, 5e-4, 2.5e-4]
@@ -123,5 +124,5 @@ def test_fitted_order_on_the_benchmarks_smooth_case():
             for name in ("velocity_verlet", "semi_implicit_euler")}
     assert accuracy.fitted_order(rows["velocity_verlet"], "velocity_verlet") >= 1.9
     assert accuracy.fitted_order(rows["semi_implicit_euler"], "semi_implicit_euler") < 1.2
-    for vv, sie in zip(rows["velocity_verlet"], rows["semi_implicit_euler"]):
+    for vv, sie in zip(rows["velocity_verlet"], rows["semi_implicit_euler"][1:]):
         assert vv["force_evals"] == sie["force_evals"] and vv["error_final"] < sie["error_final"]

@@ -59,6 +59,13 @@ def gather_spring_force(model: ti.template(), x: ti.template(), v: ti.template()
     return f
 
 
+@ti.func
+def _damper_pair_force(x: ti.template(), dv: ti.template(), a, b, kd):
+    """Damper force [N] on particle a from its spring to b at velocities ``dv`` [m/s] (no stiffness)."""
+    d = x[a] - x[b]
+    return spring_force(d, dv[a] - dv[b], d.norm(), 0.0, 0.0, kd)
+
+
 STRATEGIES = ("scatter", "per_spring", "gather")
 
 
@@ -273,6 +280,76 @@ class ForceEvaluator:
             else:
                 kkd = rows.kkd[e]
             f += spring_force(d, vi - v[j], d.norm(), rows.rest[e], kkd[0], kkd[1])
+        return f
+
+    # -- the damper alone (velocity Verlet's corrector) -------------------------------------------
+    @ti.func
+    def spring_sum(self, x: ti.template(), v: ti.template(), i):
+        """Spring and damper force sum [N] on particle i at state (x, v), without gravity or contact
+        (``accel``'s sum; per_spring and scatter need ``spring_pass`` first, and scatter clears it)."""
+        m = self.model
+        f = ti.Vector.zero(float, 3)
+        if ti.static(self.strategy == "per_spring"):
+            for e in range(m.adj_offset[i], m.adj_split[i]):
+                f += self.spring_f[m.adj_spring[e]]
+            for e in range(m.adj_split[i], m.adj_offset[i + 1]):
+                f -= self.spring_f[end_b_spring(m.adj_spring[e])]
+        elif ti.static(self.strategy == "scatter"):
+            f = self.f[i]
+            self.f[i] = ti.Vector.zero(float, 3)
+        else:
+            f = self._row_force(x, v, i, ti.static(not self._row_copies()))
+        return f
+
+    @ti.func
+    def damper_pass(self, x: ti.template(), dv: ti.template()):
+        """``spring_pass`` for the dampers alone at velocities ``dv`` [m/s] (the springs' stiffness
+        left out): each spring's direction at ``x`` and the relative velocity of its ends. The damper
+        is linear in the velocity, so a force at v plus this one at dv is the force at v + dv."""
+        m = self.model
+        if ti.static(self.strategy == "per_spring"):
+            for s in range(m.n_springs):
+                ends = m.spring_ends[s]
+                self.spring_f[s] = _damper_pair_force(x, dv, ends[0], ends[1], self.kkd[s][1])
+        elif ti.static(self.strategy == "scatter" and self.parallel):
+            for parity in ti.static(range(2)):  # the slabs of ``spring_pass``
+                for t in range((self.n_slabs - parity + 1) // 2 * SLAB_STRIDE):
+                    if t % SLAB_STRIDE == 0:
+                        slab = 2 * (t // SLAB_STRIDE) + parity
+                        for r in range(self.slab_first[slab], self.slab_first[slab + 1]):
+                            for s in range(self.slab_range[r][0], self.slab_range[r][1]):
+                                self._scatter_damper(x, dv, s)
+        elif ti.static(self.strategy == "scatter"):
+            for s in range(m.n_springs):
+                self._scatter_damper(x, dv, s)
+
+    @ti.func
+    def _scatter_damper(self, x: ti.template(), dv: ti.template(), s):
+        ends = self.model.spring_ends[s]
+        f = _damper_pair_force(x, dv, ends[0], ends[1], self.kkd[s][1])
+        self.f[ends[0]] = self.f[ends[0]] + f
+        self.f[ends[1]] = self.f[ends[1]] - f
+
+    @ti.func
+    def damper_sum(self, x: ti.template(), dv: ti.template(), i):
+        """Damper force sum [N] on particle i at velocities ``dv`` (after ``damper_pass``)."""
+        f = ti.Vector.zero(float, 3)
+        if ti.static(self._has_rows()):
+            rows = self.rows
+            w = ti.static(rows.width)
+            xi, vi = x[i], dv[i]
+            for k in range(w):
+                e = i * w + k
+                j = rows.other[e]
+                kd = 0.0
+                if ti.static(not self._row_copies()):
+                    kd = self.model.group_kd[rows.group[e]]
+                else:
+                    kd = rows.kkd[e][1]
+                d = xi - x[j]
+                f += spring_force(d, vi - dv[j], d.norm(), 0.0, 0.0, kd)
+        else:
+            f = self.spring_sum(x, dv, i)
         return f
 
     # -- shared ------------------------------------------------------------------------------------

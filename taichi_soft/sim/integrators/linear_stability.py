@@ -46,14 +46,17 @@ def symplectic_euler(h, jac):
 
 
 def velocity_verlet(h, jac):
-    """One step of ``velocity_verlet`` on the state (x, v, a) it carries (a: the last force, taken
-    at the predicted velocity): vh = v + h/2 a, x1 = x + h vh, a1 = J (x1, vh + h/2 a),
-    v1 = vh + h/2 a1. A 3 x 3 matrix: the carried force is a state of the method."""
+    """One step of ``velocity_verlet`` on the state (x, v, a) it carries (a: the last force):
+    vh = v + h/2 a, x1 = x + h vh; a first force a0 = J (x1, vh + h/2 a) at the predicted
+    velocity; the damper-only corrector re-predicts v1 = vh + h/2 a0 and takes the damper there,
+    a1 = J (x1, vh + h/2 a0); v1 = vh + h/2 a1. A 3 x 3 matrix: the carried force is a state of
+    the method."""
     w2, g = -jac[1, 0], -jac[1, 1]
     x1 = np.array([1.0, h, h * h / 2])
-    vp = np.array([0.0, 1.0, h])
-    a1 = -w2 * x1 - g * vp
-    v1 = np.array([0.0, 1.0, h / 2]) + (h / 2) * a1
+    vh = np.array([0.0, 1.0, h / 2])
+    a0 = -w2 * x1 - g * (vh + np.array([0.0, 0.0, h / 2]))
+    a1 = -w2 * x1 - g * (vh + (h / 2) * a0)
+    v1 = vh + (h / 2) * a1
     return np.array([x1, v1, a1])
 
 
