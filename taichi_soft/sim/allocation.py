@@ -14,8 +14,6 @@ arrays page-aligned in a tree of their own, in one process, interleaved (``studi
 docs/benchmarks/README.md, "Array placement"). Which placements are slow was not pinned down;
 page-aligned arrays were fast in every arrangement tried.
 """
-from contextlib import contextmanager
-
 import numpy as np
 import taichi as ti
 
@@ -32,27 +30,6 @@ MAX_TREES = 512
 TREES_PER_SIMULATION = 32
 
 
-_DUALS = [False]
-
-
-@contextmanager
-def dual_fields():
-    """Real fields allocated inside carry a forward-mode dual (Taichi's ``needs_dual``): the
-    gradients module builds its simulation so, and runs the same step kernels in forward mode.
-    Outside it nothing changes (no dual is placed, the kernels compile as before)."""
-    before = _DUALS[0]
-    _DUALS[0] = True
-    try:
-        yield
-    finally:
-        _DUALS[0] = before
-
-
-def duals() -> bool:
-    """Whether real fields allocated now carry a dual (``dual_fields``)."""
-    return _DUALS[0]
-
-
 def allocate(owner, table: "dict[str, Field]", n_particles: int, n_springs: int):
     """Allocate the fields of ``table`` as attributes of ``owner``: an element per particle
     (``n_particles``) or per spring (``n_springs``, at least 1), in the run's real type or i32.
@@ -63,13 +40,12 @@ def allocate(owner, table: "dict[str, Field]", n_particles: int, n_springs: int)
     for name, f in table.items():
         size = n_particles if f.per == "particle" else max(n_springs, 1)
         dtype = ti.i32 if f.ints else float
-        dual = duals() and not f.ints
         if len(f.shape) == 0:
-            field = ti.field(dtype, size, needs_dual=dual)
+            field = ti.field(dtype, size)
         elif len(f.shape) == 1:
-            field = ti.Vector.field(f.shape[0], dtype, size, needs_dual=dual)
+            field = ti.Vector.field(f.shape[0], dtype, size)
         else:
-            field = ti.Matrix.field(*f.shape, dtype, size, needs_dual=dual)
+            field = ti.Matrix.field(*f.shape, dtype, size)
         setattr(owner, name, field)
 
 
@@ -87,9 +63,6 @@ def page_aligned_vectors(n: int, count: int) -> list:
             builder.dense(ti.i, gap // 4).place(ti.field(ti.i32))
         fields.append(ti.Vector.field(3, float))
         builder.dense(ti.i, size).place(fields[-1])
-    if duals():  # after the primal fields, which keep their pages
-        for f in fields:
-            builder.dense(ti.i, size).place(f.dual)
     builder.finalize()
     return fields
 

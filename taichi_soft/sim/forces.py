@@ -19,7 +19,6 @@ Damper on particle a (seed):  f_a = -kd ((v_a - v_b) . l) l
 import numpy as np
 import taichi as ti
 
-from .allocation import duals
 from .footprint import Buffers, FieldCounts
 from .spring_codes import end_b_spring
 from .rows import SpringRows
@@ -140,17 +139,17 @@ class ForceEvaluator:
         elif not (fused and strategy == "scatter"):
             model.ensure_adjacency()  # per_spring sums, and compute(), walk each particle's springs
         m = max(model.n_springs, 1)
-        self.spring_f = ti.Vector.field(3, float, m, needs_dual=duals()) if strategy == "per_spring" else None
+        self.spring_f = ti.Vector.field(3, float, m) if strategy == "per_spring" else None
         # (k [N/m], kd [N s/m]) of each spring (per_spring, scatter); gather: ``rows.kkd`` per slot.
         self.kkd = None
         if fused and strategy != "gather":
-            self.kkd = ti.Vector.field(2, float, m, needs_dual=duals())
+            self.kkd = ti.Vector.field(2, float, m)
         # refresh(): group_k, group_kd as last copied; whether a copy was made; whether one is due
         self._seen = ti.Vector.field(2, float, max(model.n_groups, 1))
         self._copied = ti.field(ti.i32, ())
         self._changed = ti.field(ti.i32, ())
         if strategy == "scatter":
-            self.f = ti.Vector.field(3, float, model.n_particles, needs_dual=duals())  # per-particle force sums [N], kept at 0 between passes
+            self.f = ti.Vector.field(3, float, model.n_particles)  # per-particle force sums [N], kept at 0 between passes
             first, ranges = model.slab_ranges()  # the model's own springs, split into slabs (slabs.py)
             self.n_slabs = len(first) - 1
             self.slab_first = ti.field(ti.i32, len(first))

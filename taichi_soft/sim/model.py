@@ -17,7 +17,7 @@ import numpy as np
 import taichi as ti
 
 from . import slabs
-from .allocation import duals, numpy_real
+from .allocation import numpy_real
 from .bodies import BodyInfo
 from .lattice import SPRING_KINDS
 from .scalar_fields import assign
@@ -84,18 +84,18 @@ class Model:
         self._lattice = False  # springs in lattice order (ModelBuilder): slab ranges by arithmetic
 
         n, m = self.n_particles, max(self.n_springs, 1)
-        self.mass = ti.field(float, n, needs_dual=duals())
-        self.inv_mass = ti.field(float, n, needs_dual=duals())
+        self.mass = ti.field(float, n)
+        self.inv_mass = ti.field(float, n)
         self.spring_ends = ti.Vector.field(2, ti.i32, m)
         self.spring_rest = ti.field(float, m)
         self.spring_group = ti.field(ti.i32, m)
         # Written only through the set_* methods below, which tell the listeners (a solver that
         # factorised a matrix from them must know): kernels read them, nothing else writes them.
-        self.group_k = ti.field(float, max(self.n_groups, 1), needs_dual=duals())
-        self.group_kd = ti.field(float, max(self.n_groups, 1), needs_dual=duals())
+        self.group_k = ti.field(float, max(self.n_groups, 1))
+        self.group_kd = ti.field(float, max(self.n_groups, 1))
         self.adj_offset = self.adj_other = self.adj_rest = self.adj_group = self.adj_spring = None
         self.adj_split = None  # allocated by ensure_adjacency
-        self.gravity = ti.Vector.field(3, float, (), needs_dual=duals())
+        self.gravity = ti.Vector.field(3, float, ())
         # A hand pulling one particle (``grab.attach``: the demo's mouse); read with ti.static when
         # a step compiles, so a model without one compiles no grab code.
         self.grab = None

@@ -19,8 +19,6 @@ copies (``copies=False``: the force pass reads them through the group, ``forces.
 import numpy as np
 import taichi as ti
 
-from .allocation import duals
-
 
 def lattice_width(n: int) -> int:
     """Row width of an n^3 lattice body: the springs of its most central particle (32 for n >= 5)."""
@@ -49,7 +47,7 @@ class SpringRows:
         self.rest = ti.field(float, slots)
         self.group = ti.field(ti.i32, slots)
         self.copies = copies  # a compile-time constant of the force pass
-        self.kkd = ti.Vector.field(2, float, slots, needs_dual=duals()) if copies else None
+        self.kkd = ti.Vector.field(2, float, slots) if copies else None
         self._fill(degree)
 
     @ti.kernel

@@ -24,7 +24,6 @@ live in 0-d fields so they can be tuned between steps without recompiling.
 import numpy as np
 import taichi as ti
 
-from .allocation import duals
 from .scalar_fields import assign
 
 KINDS = ("none", "plane", "tilted_plane", "sphere", "bowl")
@@ -60,8 +59,8 @@ class Terrain:
 
     def __init__(self, n_particles: int, **contact):
         self.n_particles = n_particles
-        self.restitution = ti.field(float, (), needs_dual=duals())  # kr in [0, 1]
-        self.friction = ti.field(float, (), needs_dual=duals())  # Coulomb mu >= 0
+        self.restitution = ti.field(float, ())  # kr in [0, 1]
+        self.friction = ti.field(float, ())  # Coulomb mu >= 0
         self.epsilon = ti.field(float, ())  # contact detection distance [m]
         self.bounce_threshold = ti.field(float, ())  # slowest approach [m/s] that bounces
         self.impact_friction = ti.field(ti.i32, ())  # 1: Coulomb friction on the impact impulse
