@@ -164,3 +164,76 @@ class Problem:
         """(positions [frames, particles, 3], {param: d positions / d param}): one pass per parameter."""
         x = self.trajectory(values, frame_steps)
         return x, {p: self.trajectory(values, frame_steps, seed=p) for p in params}
+
+
+BOUNDS = {"restitution": (0.0, 1.0), "friction": (0.0, np.inf)}  # the others: > 0
+POSITIVE_FLOOR = 1e-9  # a stiffness, damping, mass or gravity is kept at least this fraction of its start
+
+
+def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: list[str], start: dict | None = None,
+        max_iters: int = 30, tol: float = 1e-12, progress=None) -> dict:
+    """Levenberg-Marquardt with bounds on ``params`` so that the positions at ``frame_steps``
+    match ``target`` [frames, particles, 3]. Loss: mean over frames and particles of the squared
+    distance [m^2]. Each iteration takes one Jacobian (one pass per parameter) and one or more
+    trial runs. Returns values, Gauss-Newton standard errors, loss history, counts.
+    ``progress(iteration, loss, values)`` is called after each iteration."""
+    values = dict(problem.values() if start is None else start)
+    scale = {p: abs(values[p]) if values[p] != 0 else 1.0 for p in params}
+    count = target[..., 0].size
+    runs, grads = 0, 0
+
+    def residual(vals):
+        nonlocal runs
+        runs += 1
+        return ((problem.trajectory(vals, frame_steps) - target) / np.sqrt(count)).ravel()
+
+    def clip(name, value):
+        lo, hi = BOUNDS.get(name, (POSITIVE_FLOOR * scale[name], np.inf))
+        return float(min(max(value, lo), hi))
+
+    r = residual(values)
+    loss = float(r @ r)
+    history = [loss]
+    lam = 1e-3
+    jac = None
+    for it in range(max_iters):
+        x_and = problem.jacobian(values, params, frame_steps)
+        grads += 1
+        jac = np.stack([x_and[1][p].ravel() / np.sqrt(count) * scale[p] for p in params], axis=1)
+        r = ((x_and[0] - target) / np.sqrt(count)).ravel()
+        jtj, jtr = jac.T @ jac, jac.T @ r
+        improved = False
+        for _ in range(12):
+            step = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-30), -jtr)
+            trial = dict(values)
+            for p, s in zip(params, step):
+                trial[p] = clip(p, values[p] + s * scale[p])
+            rt = residual(trial)
+            lt = float(rt @ rt)
+            if lt < loss:
+                values, improved = trial, True
+                lam = max(lam / 3, 1e-9)
+                break
+            lam *= 4
+        history.append(min(loss, lt) if improved else loss)
+        if progress is not None:
+            progress(it + 1, history[-1], values)
+        if not improved or loss - history[-1] <= tol * max(loss, 1e-300) or history[-1] == 0.0:
+            loss = history[-1]
+            break
+        loss = history[-1]
+    # Gauss-Newton uncertainty at the result: sigma^2 (J^T J)^-1, sigma^2 from the residual
+    x_and = problem.jacobian(values, params, frame_steps)
+    grads += 1
+    jac = np.stack([x_and[1][p].ravel() / np.sqrt(count) for p in params], axis=1)
+    r = ((x_and[0] - target) / np.sqrt(count)).ravel()
+    dof = max(r.size - len(params), 1)
+    sigma2 = float(r @ r) * count / dof
+    try:
+        cov = sigma2 / count * np.linalg.inv(jac.T @ jac)
+        err = {p: float(np.sqrt(max(cov[i, i], 0.0))) for i, p in enumerate(params)}
+    except np.linalg.LinAlgError:
+        err = {p: None for p in params}
+    return {"values": {p: values[p] for p in params}, "uncertainty": err, "loss_history": history,
+            "loss": float(r @ r), "gradient_evaluations": grads, "forward_runs": runs,
+            "gradient": {p: float(2 * (jac[:, i] @ r)) for i, p in enumerate(params)}}
