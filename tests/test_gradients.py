@@ -105,3 +105,36 @@ def test_fit_recovers_restitution_from_a_drop():
     target = problem.trajectory(truth, steps)
     out = gradients.fit(problem, target, steps, ["restitution"], start=dict(truth, restitution=0.3), max_iters=40)
     assert abs(out["values"]["restitution"] / truth["restitution"] - 1) <= 0.05, out["values"]
+
+
+FREE = ["--scene", "free_float", "--set", "sim.integrator=semi_implicit_euler", "--set", "body.0.n=3", "--duration", "0.6"]
+
+
+def test_fit_command_recovers_stiffness_and_damping(cli, tmp_path):
+    target = tmp_path / "t.npz"
+    assert cli("run", *FREE, "--states", str(target)).returncode == 0
+    result = tmp_path / "r.json"
+    p = cli("fit", *FREE, "--set", "body.0.stretch.k=4000", "--set", "body.0.stretch.damping=30", "--target",
+            str(target), "--params", "k_stretch,kd_stretch", "--result", str(result), "--plot", str(tmp_path / "p.png"))
+    assert p.returncode == 0, p.stderr
+    assert "iteration" in p.stderr
+    import json
+
+    out = json.loads(result.read_text())
+    assert abs(out["values"]["k_stretch"] / 2000.0 - 1) <= 0.01 and abs(out["values"]["kd_stretch"] / 60.0 - 1) <= 0.01
+    assert out["loss_history"][-1] < out["loss_history"][0] and out["gradient_evaluations"] >= 1
+    assert (tmp_path / "p.png").stat().st_size > 0
+
+
+def test_fit_command_refuses_bad_input(cli, tmp_path):
+    target = tmp_path / "t.npz"
+    assert cli("run", *FREE, "--states", str(target)).returncode == 0
+    four = [a if a != "body.0.n=3" else "body.0.n=4" for a in FREE]
+    cases = [(FREE, ["--params", "k_stiff"], "unknown parameter"),
+             (FREE, ["--params", "k_stretch", "--window", "5:6"], "no frame"),
+             (four, ["--params", "k_stretch"], "particles")]
+    for scene, extra, words in cases:
+        p = cli("fit", *scene, "--target", str(target), *extra)
+        assert p.returncode == 2, (extra, p.stderr)
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and words in lines[0], (extra, p.stderr)
