@@ -103,7 +103,6 @@ class Problem:
         out = []
         wanted = list(frame_steps)
         step = 0
-        n_hat = self.normal
         while True:
             if wanted and wanted[0] == step:
                 out.append(x.imag / H if seed else x.copy())
