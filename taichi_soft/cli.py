@@ -13,7 +13,7 @@ import os
 import signal
 import sys
 
-from .commands import bench, compare, demo, gallery, listing, run
+from .commands import bench, compare, demo, fit, gallery, listing, run
 from .commands.common import (DEFAULT_OUT, EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_OK, EXIT_OUTPUT,  # noqa: F401
                               EXIT_REPLAY_DIFFERS, EXIT_TASKS_FAILED, EXIT_UNRELIABLE, Parser)
 from . import errors
@@ -26,7 +26,7 @@ DEFAULT_SCENE, DEFAULT_INTEGRATOR = "plane", "rk4"
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="main.py", description="taichi-soft: mass-spring soft bodies on Taichi")
     sub = parser.add_subparsers(dest="command", parser_class=Parser)
-    for command in (run, compare, demo, bench, gallery, listing):  # the order of --help
+    for command in (run, compare, demo, bench, gallery, fit, listing):  # the order of --help
         command.add_parser(sub)
     return parser
 

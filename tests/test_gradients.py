@@ -1,0 +1,140 @@
+"""Forward-mode derivatives of semi-implicit Euler runs (sim/gradients.py) and the fit built on them.
+
+The stepper's answers are the engine's (to 1e-12 m), its derivatives match central finite
+differences (relative 1e-5), a wrong derivative fails that check, and a fit returns the truth
+from a synthetic target started 2x off."""
+import numpy as np
+
+from taichi_soft.sim import Simulation, scene_from_dict
+from taichi_soft.sim import gradients
+from taichi_soft.sim.simulation import frame_steps
+
+DT = 1e-3
+
+
+def make(terrain=True, stretch=(500.0, 2.0), shear=(300.0, 1.0), center_y=0.8, restitution=0.5, threshold=1.0):
+    data = {
+        "sim": {"integrator": "semi_implicit_euler", "dt": DT, "gravity": [0.0, -9.8, 0.0]},
+        "body": [{"n": 3, "size": 1.0, "particle_mass": 0.5, "center": [0.0, center_y, 0.0],
+                  "rotation": {"axis": [1, 0, 1], "degrees": 20}, "initial_stretch": [1.15, 0.95, 1.0],
+                  "stretch": {"k": stretch[0], "damping": stretch[1]}, "shear": {"k": shear[0], "damping": shear[1]},
+                  "bend": {"k": 200.0, "damping": 1.0}}],
+        "terrain": {"kind": "plane", "point": [0.0, 0.0, 0.0], "normal": [0.0, 1.0, 0.0]} if terrain
+        else {"kind": "none"},
+        "contact": {"restitution": restitution, "friction": 0.3, "bounce_threshold": threshold},
+    }
+    return Simulation(scene_from_dict(data))
+
+
+def fd_check(problem, steps, names, rel=1e-6):
+    """Largest relative difference of each derivative from a central finite difference."""
+    vals = problem.values()
+    out = {}
+    for p in names:
+        d = problem.trajectory(vals, steps, seed=p)
+        h = rel * abs(vals[p])
+        up, dn = dict(vals), dict(vals)
+        up[p] += h
+        dn[p] -= h
+        fd = (problem.trajectory(up, steps) - problem.trajectory(dn, steps)) / (2 * h)
+        out[p] = float(np.abs(fd - d).max() / np.abs(fd).max())
+    return out
+
+
+def test_stepper_equals_engine_on_a_drop():
+    sim = make()
+    res = sim.run(0.6, 30, record=True)
+    engine = np.stack([f[1] for f in res.frames])
+    assert engine[:, :, 1].min() < 0.01  # it reached the contact band
+    mine = gradients.Problem(sim).trajectory(gradients.Problem(sim).values(), frame_steps(res.steps, 30, DT))
+    assert np.abs(mine - engine).max() <= 1e-12
+
+
+def test_derivatives_match_finite_differences_contact_free():
+    sim = make(terrain=False)
+    err = fd_check(gradients.Problem(sim), frame_steps(300, 30, DT),
+                   ["k_stretch", "k_shear", "k_bend", "kd_stretch", "kd_shear", "gravity", "mass"])
+    assert max(err.values()) <= 1e-5, err
+
+
+def test_derivatives_match_finite_differences_on_a_drop():
+    # Drops onto the plane and bounces (impacts at about 2 m/s, above the 1 m/s threshold); the
+    # perturbations are far too small to move a particle across a threshold.
+    sim = make(center_y=0.9)
+    steps = frame_steps(500, 30, DT)
+    problem = gradients.Problem(sim)
+    low = problem.trajectory(problem.values(), steps)[:, :, 1].min()
+    assert low < 0.01
+    err = fd_check(problem, steps, ["k_stretch", "kd_stretch", "restitution", "friction", "gravity"])
+    assert max(err.values()) <= 1e-5, err
+
+
+def test_a_wrong_derivative_fails_the_check(monkeypatch):
+    """Flip the sign of the stiffness term's derivative (the imaginary part it contributes)."""
+    sim = make(terrain=False)
+    problem = gradients.Problem(sim)
+    real = problem._coefficients
+
+    def flipped(values, seed):
+        k, *rest = real(values, seed)
+        return (k.real - 1j * k.imag if np.iscomplexobj(k) else k, *rest)
+
+    monkeypatch.setattr(problem, "_coefficients", flipped)
+    err = fd_check(problem, frame_steps(300, 30, DT), ["k_stretch"])
+    assert err["k_stretch"] > 1e-5
+
+
+def test_fit_recovers_stiffness_and_damping_from_free_vibration():
+    sim = make(terrain=False)
+    steps = frame_steps(1000, 30, DT)
+    problem = gradients.Problem(sim)
+    truth = problem.values()
+    target = problem.trajectory(truth, steps)
+    names = ["k_stretch", "kd_stretch"]
+    start = dict(truth, k_stretch=2 * truth["k_stretch"], kd_stretch=0.5 * truth["kd_stretch"])
+    out = gradients.fit(problem, target, steps, names, start=start, max_iters=40)
+    for p in names:
+        assert abs(out["values"][p] / truth[p] - 1) <= 0.01, (p, out["values"][p], truth[p])
+
+
+def test_fit_recovers_restitution_from_a_drop():
+    sim = make(center_y=0.9, restitution=0.6)
+    steps = frame_steps(400, 30, DT)  # the drop and the first bounce (docs/gradients.md: later, slower impacts make the loss piecewise)
+    problem = gradients.Problem(sim)
+    truth = problem.values()
+    target = problem.trajectory(truth, steps)
+    out = gradients.fit(problem, target, steps, ["restitution"], start=dict(truth, restitution=0.3), max_iters=40)
+    assert abs(out["values"]["restitution"] / truth["restitution"] - 1) <= 0.05, out["values"]
+
+
+FREE = ["--scene", "free_float", "--set", "sim.integrator=semi_implicit_euler", "--set", "body.0.n=3", "--duration", "0.6"]
+
+
+def test_fit_command_recovers_stiffness_and_damping(cli, tmp_path):
+    target = tmp_path / "t.npz"
+    assert cli("run", *FREE, "--states", str(target)).returncode == 0
+    result = tmp_path / "r.json"
+    p = cli("fit", *FREE, "--set", "body.0.stretch.k=4000", "--set", "body.0.stretch.damping=30", "--target",
+            str(target), "--params", "k_stretch,kd_stretch", "--result", str(result), "--plot", str(tmp_path / "p.png"))
+    assert p.returncode == 0, p.stderr
+    assert "iteration" in p.stderr
+    import json
+
+    out = json.loads(result.read_text())
+    assert abs(out["values"]["k_stretch"] / 2000.0 - 1) <= 0.01 and abs(out["values"]["kd_stretch"] / 60.0 - 1) <= 0.01
+    assert out["loss_history"][-1] < out["loss_history"][0] and out["gradient_evaluations"] >= 1
+    assert (tmp_path / "p.png").stat().st_size > 0
+
+
+def test_fit_command_refuses_bad_input(cli, tmp_path):
+    target = tmp_path / "t.npz"
+    assert cli("run", *FREE, "--states", str(target)).returncode == 0
+    four = [a if a != "body.0.n=3" else "body.0.n=4" for a in FREE]
+    cases = [(FREE, ["--params", "k_stiff"], "unknown parameter"),
+             (FREE, ["--params", "k_stretch", "--window", "5:6"], "no frame"),
+             (four, ["--params", "k_stretch"], "particles")]
+    for scene, extra, words in cases:
+        p = cli("fit", *scene, "--target", str(target), *extra)
+        assert p.returncode == 2, (extra, p.stderr)
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and words in lines[0], (extra, p.stderr)
