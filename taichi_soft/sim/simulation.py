@@ -312,8 +312,7 @@ def check_terrain_crossing(sim: Simulation, d: np.ndarray):
     near = d < reach
     if near.sum() < 2:
         return
-    ends = sim.model.pairs_np
-    ends = ends[near[ends[:, 0]] & near[ends[:, 1]]]
+    ends = sim.model.pairs_among(near)
     x = sim.state.x.to_numpy().astype(np.float64)
     cut = ends[sim.terrain.crossed(x[ends[:, 0]], x[ends[:, 1]]), 0]
     for b, count in enumerate(np.bincount(owner[cut], minlength=len(bodies))):
