@@ -24,7 +24,7 @@ class ModelBuilder:
         self.specs.append(spec)
         return len(self.specs) - 1
 
-    def finalize(self) -> "Model":
+    def finalize(self, springs: bool = True) -> "Model":
         """The device ``Model``. Host memory: x0, v0 and masses (56 bytes per particle) kept,
         one body's lattice (24 bytes per particle) as a temporary; a cube's springs are made on
         the device, a mesh body's uploaded from its (cached) ``MeshLattice``."""
@@ -61,9 +61,11 @@ class ModelBuilder:
             p0 += len(x)
             s0 += sum(counts)
         model = Model.__new__(Model)
-        model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies)
+        model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies, springs)
         model._lattice = all(m is None for m in meshes)  # slab ranges by lattice arithmetic only for whole cubes
-        model._spring_filler = _fill_model_springs  # run by model.ensure_springs, if a pass needs them
+        model._spring_filler = _fill_model_springs  # run by model.ensure_springs
+        if springs:
+            model.ensure_springs()
         return model
 
 

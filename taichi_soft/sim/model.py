@@ -77,7 +77,7 @@ class Model:
         self._spring_filler = upload
         self.ensure_springs()
 
-    def _setup(self, x0, v0, mass, n_springs, kind_counts, group_k, group_kd, gravity, bodies):
+    def _setup(self, x0, v0, mass, n_springs, kind_counts, group_k, group_kd, gravity, bodies, springs=True):
         """Allocate every field and upload the per-particle and per-group data."""
         self.n_particles = int(len(x0))
         self.n_springs = int(n_springs)
@@ -97,6 +97,8 @@ class Model:
         # stencil force pass (stencil.py) finds a lattice's springs by index arithmetic instead.
         self.spring_ends = self.spring_rest = self.spring_group = None
         self._spring_filler = None  # writes the springs into the fields (set by the builder)
+        if springs:  # here, in the model's own tree (no tree of their own: the runtime holds few)
+            self._allocate_springs()
         self.stencil = None  # stencil.LatticeStencil, once a stencil pass was built on this model
         # Written only through the set_* methods below, which tell the listeners (a solver that
         # factorised a matrix from them must know): kernels read them, nothing else writes them.
@@ -134,21 +136,25 @@ class Model:
             self.group_k[g] = ti.cast(k[g], float)
             self.group_kd[g] = ti.cast(kd[g], float)
 
+    def ensure_springs(self):
+        """Allocate and write the spring fields unless already there (every pass but the stencil's
+        reads them). Call it before compiling a kernel that reads them."""
+        if self._spring_filler is None:
+            return  # written already, or by the caller
+        if self.spring_ends is None:
+            self._allocate_springs()
+        filler, self._spring_filler = self._spring_filler, None
+        filler(self)
+
     def springs_stored(self) -> bool:
         """Whether the spring fields (``spring_ends``, ``spring_rest``, ``spring_group``) exist."""
         return self.spring_ends is not None
 
-    def ensure_springs(self):
-        """Allocate and write the spring fields unless already there (every pass but the stencil's
-        reads them). Call it before compiling a kernel that reads them."""
-        if self.spring_ends is not None:
-            return
+    def _allocate_springs(self):
         m = max(self.n_springs, 1)
         self.spring_ends = ti.Vector.field(2, ti.i32, m)
         self.spring_rest = ti.field(float, m)
         self.spring_group = ti.field(ti.i32, m)
-        if self._spring_filler is not None:
-            self._spring_filler(self)
 
     def pairs_among(self, near) -> np.ndarray:
         """Spring ends [k, 2] int32 of the springs whose two ends are both ``near`` (a bool mask
