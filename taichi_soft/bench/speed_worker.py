@@ -51,7 +51,7 @@ class _Stepper:
             self.x = lambda: self.sim.state.x.to_numpy()
             forces = self.sim.integrator.forces.strategy
             self.mode = ("serial" if self.sim.integrator._serial() else "parallel") + f", {forces}"
-            if forces == "gather":
+            if forces in ("gather", "stencil"):
                 self.evals = 2 * self.springs
         elif kind == "yardstick":
             from .references import YardstickStepper

@@ -24,7 +24,7 @@ class ModelBuilder:
         self.specs.append(spec)
         return len(self.specs) - 1
 
-    def finalize(self) -> "Model":
+    def finalize(self, springs: bool = True) -> "Model":
         """The device ``Model``. Host memory: x0, v0 and masses (56 bytes per particle) kept,
         one body's lattice (24 bytes per particle) as a temporary; a cube's springs are made on
         the device, a mesh body's uploaded from its (cached) ``MeshLattice``."""
@@ -61,21 +61,28 @@ class ModelBuilder:
             p0 += len(x)
             s0 += sum(counts)
         model = Model.__new__(Model)
-        model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies)
+        model._setup(x0, v0, mass, s0, kind_counts, group_k, group_kd, self.gravity, bodies, springs)
         model._lattice = all(m is None for m in meshes)  # slab ranges by lattice arithmetic only for whole cubes
-        for b, info in enumerate(bodies):
-            spec = info.spec
-            if info.mesh is not None:
-                if info.mesh.n_springs:
-                    m = info.mesh
-                    _put_springs(model.spring_ends, model.spring_rest, model.spring_group, m.pairs,
-                                 m.rest.astype(model.real), m.kind.astype(np.int32), info.particles.start,
-                                 info.springs.start, spring_group(b, 0))
-                continue
-            lattice.fill_springs(model.spring_ends, model.spring_rest, model.spring_group, spec.n,
-                                 info.particles.start, info.springs.start, spring_group(b, 0),
-                                 spec.size / (spec.n - 1))
+        model._spring_filler = _fill_model_springs  # run by model.ensure_springs
+        if springs:
+            model.ensure_springs()
         return model
+
+
+def _fill_model_springs(model):
+    """Write every body's springs into the model's spring fields (``Model.ensure_springs``)."""
+    for b, info in enumerate(model.bodies):
+        spec = info.spec
+        if info.mesh is not None:
+            if info.mesh.n_springs:
+                m = info.mesh
+                _put_springs(model.spring_ends, model.spring_rest, model.spring_group, m.pairs,
+                             m.rest.astype(model.real), m.kind.astype(np.int32), info.particles.start,
+                             info.springs.start, spring_group(b, 0))
+            continue
+        lattice.fill_springs(model.spring_ends, model.spring_rest, model.spring_group, spec.n,
+                             info.particles.start, info.springs.start, spring_group(b, 0),
+                             spec.size / (spec.n - 1))
 
 
 @ti.kernel

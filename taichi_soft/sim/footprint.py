@@ -87,7 +87,8 @@ def per_spring(doc: str, shape: tuple = (), ints: bool = False) -> Field:
 
 VEC, MAT = (3,), (3, 3)  # the shapes of a vector and a 3x3 matrix field's elements
 
-MODEL = FieldCounts(2, 0, 1, 3)  # model.py: mass, inv_mass | rest, ends x2, group
+MODEL_SPRINGS = FieldCounts(0, 0, 1, 3)  # model.py, once stored (ensure_springs): rest, ends x2, group
+MODEL = FieldCounts(2, 0, 0, 0) + MODEL_SPRINGS  # model.py: mass, inv_mass | the stored springs
 STATE = FieldCounts(6, 0, 0, 0)  # state.py: x, v
 ADJACENCY = FieldCounts(0, 2, 2, 6)  # Model.ensure_adjacency: adj_offset, adj_split | per spring end: rest, other, group, code
 
@@ -118,8 +119,9 @@ class Counts:
     computed on first use from the callables given, so a choice that needs neither costs nothing."""
 
     def __init__(self, particles: int, springs: int, envelope: Callable[[], int] | None = None,
-                 row_width: Callable[[], int] | None = None):
+                 row_width: Callable[[], int] | None = None, lattice: bool = False):
         self.particles, self.springs = particles, springs
+        self.lattice = lattice  # every body a whole lattice (cubes): the stencil pass applies
         self._envelope, self._row_width = envelope, row_width
 
     @cached_property

@@ -140,6 +140,7 @@ class ForceEvaluator:
         self.strategy = strategy
         self.parallel = parallel
         self.rows = None
+        model.ensure_springs()  # every strategy here reads the stored springs
         if fused and strategy == "gather":
             # padded rows (rows.py); compute() walks them too
             self.rows = SpringRows(model, copies=not rows_look_up_groups(np.dtype(model.real).itemsize))
@@ -399,6 +400,8 @@ class Diagnostics:
         self.model = model
         self.terrain = terrain
         self.out = ti.field(ti.f64, 8)
+        if model.stencil is None:
+            model.ensure_springs()  # the spring energy sums the stored springs, or the stencil's
 
     @ti.kernel
     def _reduce(self, x: ti.template(), v: ti.template()):
@@ -420,10 +423,13 @@ class Diagnostics:
             if ti.static(self.terrain.has_contact):
                 d, _ = self.terrain.query(i, x[i])
                 ti.atomic_min(self.out[6], ti.cast(d, ti.f64))
-        for s in range(m.n_springs):
-            a, b = m.spring_ends[s][0], m.spring_ends[s][1]
-            stretch = ti.cast((x[a] - x[b]).norm() - m.spring_rest[s], ti.f64)
-            self.out[7] += 0.5 * ti.cast(m.group_k[m.spring_group[s]], ti.f64) * stretch * stretch
+        if ti.static(m.springs_stored()):
+            for s in range(m.n_springs):
+                a, b = m.spring_ends[s][0], m.spring_ends[s][1]
+                stretch = ti.cast((x[a] - x[b]).norm() - m.spring_rest[s], ti.f64)
+                self.out[7] += 0.5 * ti.cast(m.group_k[m.spring_group[s]], ti.f64) * stretch * stretch
+        else:
+            m.stencil.add_spring_energy(x, self.out, 7)
 
     def compute(self, state) -> dict:
         """Energies [J], centre of mass [m], max speed [m/s], min signed terrain distance [m]."""

@@ -91,6 +91,25 @@ def _fill_springs(ends: ti.template(), rest: ti.template(), group: ti.template()
         group[s0 + s] = g0 + kind[q]
 
 
+def lattice_pairs_among(n: int, p0: int, near) -> np.ndarray:
+    """Spring ends [k, 2] int32 (global indices, particles from ``p0``) of an n^3 lattice's springs
+    whose two ends are both ``near`` (a bool mask over the body's n^3 points), in spring order,
+    without the whole spring list: a bool array of n^3 per offset at a time."""
+    near = np.asarray(near, bool).reshape(n, n, n)
+    idx = lattice_index(n)
+    out = []
+    for _, off in SPRING_OFFSETS:
+        lo = [max(-o, 0) for o in off]  # start points: lo <= p < n - max(o, 0)
+        hi = [n - max(o, 0) for o in off]
+        if min(h - l for l, h in zip(lo, hi)) <= 0:
+            continue
+        a = tuple(slice(l, h) for l, h in zip(lo, hi))
+        b = tuple(slice(l + o, h + o) for l, h, o in zip(lo, hi, off))
+        ok = near[a] & near[b]
+        out.append(np.stack([idx[a][ok], idx[b][ok]], axis=1))
+    return (np.concatenate(out) + p0).astype(np.int32) if out else np.zeros((0, 2), np.int32)
+
+
 def envelope_size(n: int) -> int:
     """Values of the skyline (envelope) Cholesky factor of an n^3 lattice's spring graph in
     lattice order: the sum over rows of (row index - first neighbour's index + 1).

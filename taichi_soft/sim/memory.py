@@ -29,7 +29,7 @@ import subprocess
 
 from . import collision
 from ..errors import UserError
-from .footprint import MODEL, STATE, Buffers, Counts
+from .footprint import MODEL, MODEL_SPRINGS, STATE, Buffers, Counts
 
 _MB = 2**20
 # The process base (the Python process with numpy and the Taichi runtime, its kernels compiled) is
@@ -85,7 +85,8 @@ def counts(scene_data: dict) -> Counts:
     from .rows import lattice_width
 
     bodies = [int(b["n"]) for b in scene_data["body"]]
-    return Counts(*scene_counts(scene_data), envelope=lambda: sum(envelope_size(n) for n in bodies),
+    lattice = all(b.get("shape", "cube") != "mesh" for b in scene_data["body"])
+    return Counts(*scene_counts(scene_data), lattice=lattice, envelope=lambda: sum(envelope_size(n) for n in bodies),
                   row_width=lambda: max(lattice_width(n) for n in bodies))
 
 
@@ -109,13 +110,25 @@ def integrator_buffers(scene_data: dict, integrator: str, arch: str, real_bytes:
     """What the registered integrator ``integrator`` allocates for this scene, as it declares it:
     its options (the scene's ``[solver]`` table, those it has) resolved for ``arch`` and the
     counts, then its ``buffers``. An unregistered name is a ``UserError``."""
+    cls, options, c = _resolved(scene_data, integrator, arch, fast_math, sizes)
+    return cls.buffers(options, arch, c, real_bytes)
+
+
+def _resolved(scene_data: dict, integrator: str, arch: str, fast_math: bool, sizes: Counts | None = None):
+    """(class, resolved options, counts) of ``integrator`` on this scene."""
     # imports Taichi: only once the CLI has set it up quietly
     from .integrators import integrator_class, scene_options
 
     cls = integrator_class(integrator)
     c = sizes or counts(scene_data)
-    options = cls.configure(scene_options(integrator, scene_data), arch, fast_math, c)
-    return cls.buffers(options, arch, c, real_bytes)
+    return cls, cls.configure(scene_options(integrator, scene_data), arch, fast_math, c), c
+
+
+def stores_springs(scene_data: dict, integrator: str, arch: str, fast_math: bool = True,
+                   sizes: Counts | None = None) -> bool:
+    """Whether the model of a run of ``integrator`` stores its springs (every pass but the stencil's)."""
+    cls, options, _ = _resolved(scene_data, integrator, arch, fast_math, sizes)
+    return cls.stores_springs(options)
 
 
 def resolve_arch(arch: str) -> str:
@@ -146,8 +159,10 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     n_p, n_s = c.particles, c.springs
     buffers = [integrator_buffers(scene_data, name, arch, real, fast_math, c) for name in names]
     fields = 0
-    for b in buffers:
+    for name, b in zip(names, buffers):
         fields += COMMON.bytes(n_p, n_s, real) + b.bytes(n_p, n_s, real)
+        if not stores_springs(scene_data, name, arch, fast_math, c):
+            fields -= MODEL_SPRINGS.bytes(n_p, n_s, real)  # the stencil pass: the model stores none
         fields += n_p * (1 if scene_data["terrain"]["kind"] == "bowl" else 0)  # terrain.Bowl.inside (i8)
     if len(scene_data["body"]) > 1:  # body-body contact: one per simulation, and the implicit pair terms
         from .integrators.implicit import pairs

@@ -41,6 +41,8 @@ class Model:
       spring_group        [n_springs]              ``spring_group(body, kind)`` (stretch 0, shear 1, bend 2)
       group_k, group_kd   [3 n_bodies]             stiffness [N/m], damper coefficient [N s/m]
       gravity             0-d vec3                 [m/s^2]
+    (the three spring fields only once ``ensure_springs()`` has run: every force pass but the
+    stencil's, the adjacency and the host views ask for them)
     and, once ``ensure_adjacency()`` has run (gathering force strategies, implicit solvers):
       adj_offset          [n_particles + 1]        CSR row starts of each particle's springs
       adj_other, adj_rest, adj_group [2 n_springs] the other end, rest length, group per entry
@@ -65,12 +67,17 @@ class Model:
         group = np.asarray(group, dtype=np.int32)
         kinds = np.bincount(group_kind(group), minlength=N_KINDS) if len(group) else np.zeros(N_KINDS, np.int64)
         self._setup(x0, v0, mass, len(pairs), kinds, group_k, group_kd, gravity, bodies)
-        if self.n_springs:
-            self.spring_ends.from_numpy(pairs)
-            self.spring_rest.from_numpy(np.asarray(rest, dtype=self.real))
-            self.spring_group.from_numpy(group)
 
-    def _setup(self, x0, v0, mass, n_springs, kind_counts, group_k, group_kd, gravity, bodies):
+        def upload(model):
+            if model.n_springs:
+                model.spring_ends.from_numpy(pairs)
+                model.spring_rest.from_numpy(np.asarray(rest, dtype=model.real))
+                model.spring_group.from_numpy(group)
+
+        self._spring_filler = upload
+        self.ensure_springs()
+
+    def _setup(self, x0, v0, mass, n_springs, kind_counts, group_k, group_kd, gravity, bodies, springs=True):
         """Allocate every field and upload the per-particle and per-group data."""
         self.n_particles = int(len(x0))
         self.n_springs = int(n_springs)
@@ -83,12 +90,16 @@ class Model:
         self.real = numpy_real()
         self._lattice = False  # springs in lattice order (ModelBuilder): slab ranges by arithmetic
 
-        n, m = self.n_particles, max(self.n_springs, 1)
+        n = self.n_particles
         self.mass = ti.field(float, n)
         self.inv_mass = ti.field(float, n)
-        self.spring_ends = ti.Vector.field(2, ti.i32, m)
-        self.spring_rest = ti.field(float, m)
-        self.spring_group = ti.field(ti.i32, m)
+        # The stored springs (``ensure_springs``): allocated only for the passes that read them; the
+        # stencil force pass (stencil.py) finds a lattice's springs by index arithmetic instead.
+        self.spring_ends = self.spring_rest = self.spring_group = None
+        self._spring_filler = None  # writes the springs into the fields (set by the builder)
+        if springs:  # here, in the model's own tree (no tree of their own: the runtime holds few)
+            self._allocate_springs()
+        self.stencil = None  # stencil.LatticeStencil, once a stencil pass was built on this model
         # Written only through the set_* methods below, which tell the listeners (a solver that
         # factorised a matrix from them must know): kernels read them, nothing else writes them.
         self.group_k = ti.field(float, max(self.n_groups, 1))
@@ -125,6 +136,37 @@ class Model:
             self.group_k[g] = ti.cast(k[g], float)
             self.group_kd[g] = ti.cast(kd[g], float)
 
+    def ensure_springs(self):
+        """Allocate and write the spring fields unless already there (every pass but the stencil's
+        reads them). Call it before compiling a kernel that reads them."""
+        if self._spring_filler is None:
+            return  # written already, or by the caller
+        if self.spring_ends is None:
+            self._allocate_springs()
+        filler, self._spring_filler = self._spring_filler, None
+        filler(self)
+
+    def springs_stored(self) -> bool:
+        """Whether the spring fields (``spring_ends``, ``spring_rest``, ``spring_group``) exist."""
+        return self.spring_ends is not None
+
+    def _allocate_springs(self):
+        m = max(self.n_springs, 1)
+        self.spring_ends = ti.Vector.field(2, ti.i32, m)
+        self.spring_rest = ti.field(float, m)
+        self.spring_group = ti.field(ti.i32, m)
+
+    def pairs_among(self, near) -> np.ndarray:
+        """Spring ends [k, 2] int32 of the springs whose two ends are both ``near`` (a bool mask
+        over particles), from the stored springs, or without them from the lattice (cube bodies)."""
+        if self.springs_stored() or not self._lattice:
+            ends = self.pairs_np
+            return ends[near[ends[:, 0]] & near[ends[:, 1]]]
+        from .lattice import lattice_pairs_among
+
+        parts = [lattice_pairs_among(info.spec.n, info.particles.start, near[info.particles]) for info in self.bodies]
+        return np.concatenate(parts) if parts else np.zeros((0, 2), np.int32)
+
     def ensure_adjacency(self):
         """Allocate and build the adjacency fields (class docstring) unless already built.
 
@@ -132,6 +174,7 @@ class Model:
         """
         if self.adj_offset is not None:
             return
+        self.ensure_springs()
         n, m = self.n_particles, max(self.n_springs, 1)
         self.adj_offset = ti.field(ti.i32, n + 1)
         self.adj_other = ti.field(ti.i32, 2 * m)
@@ -204,17 +247,21 @@ class Model:
     # -- host views (downloads; see the class docstring) -----------------------------------------
     @property
     def pairs_np(self) -> np.ndarray:
-        """Spring ends [n_springs, 2] int32, downloaded from ``spring_ends`` (a new copy each call)."""
+        """Spring ends [n_springs, 2] int32, downloaded from ``spring_ends`` (a new copy each call;
+        stores the springs first if they were not)."""
+        self.ensure_springs()
         return self.spring_ends.to_numpy()[: self.n_springs]
 
     @property
     def rest_np(self) -> np.ndarray:
         """Rest lengths [m], [n_springs] float64, downloaded from ``spring_rest`` (a new copy each call)."""
+        self.ensure_springs()
         return self.spring_rest.to_numpy()[: self.n_springs].astype(np.float64, copy=False)
 
     @property
     def group_np(self) -> np.ndarray:
         """Spring groups [n_springs] int32, downloaded from ``spring_group`` (a new copy each call)."""
+        self.ensure_springs()
         return self.spring_group.to_numpy()[: self.n_springs]
 
     # -- run-time parameters -------------------------------------------------------------

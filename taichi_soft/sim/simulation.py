@@ -75,17 +75,28 @@ class RunResult:
     frames: list = field(default_factory=list)
 
 
-def build_world(data: dict):
+def build_world(data: dict, springs: bool = True):
     """(model, terrain) of a scene's data: its bodies and the ground they fall on, at rest in
     their start pose (what ``Simulation`` steps; the render process of ``--pipeline overlap``
     builds the same to draw positions it is sent)."""
     builder = ModelBuilder(gravity=data["sim"]["gravity"])
     for body in data["body"]:
         builder.add_cube(body_spec(body))
-    model = builder.finalize()
+    model = builder.finalize(springs)  # springs=False: the stencil pass stores none
     t = data["terrain"]
     geometry = {k: v for k, v in t.items() if k != "kind"}
     return model, make_terrain(t["kind"], model.n_particles, geometry, **data["contact"])
+
+
+def _stores_springs(name: str, options, data: dict) -> bool:
+    """Whether integrator ``name`` with ``options`` reads stored springs on this scene (all but the
+    stencil pass): the model then stores them in its own tree."""
+    from .integrators import integrator_class
+    from .integrators.base import running_target
+    from .memory import counts
+
+    cls = integrator_class(name)
+    return cls.stores_springs(cls.configure(options, *running_target(), counts(data)))
 
 
 class Simulation:
@@ -100,10 +111,10 @@ class Simulation:
         data = scene.data
         self.scene = scene
         check_tree_room()
-        self.model, self.terrain = build_world(data)
         self.integrator_name = integrator or data["sim"]["integrator"]
         if options is None:
             options = data.get("solver", {})
+        self.model, self.terrain = build_world(data, _stores_springs(self.integrator_name, options, data))
         # Body-body contact only where there are bodies to collide: a one-body scene compiles none.
         self.contacts = BodyContacts(self.model, self.terrain) if len(self.model.bodies) > 1 else None
         self.integrator = make_integrator(self.integrator_name, self.model, self.terrain, options, self.contacts)
@@ -312,8 +323,7 @@ def check_terrain_crossing(sim: Simulation, d: np.ndarray):
     near = d < reach
     if near.sum() < 2:
         return
-    ends = sim.model.pairs_np
-    ends = ends[near[ends[:, 0]] & near[ends[:, 1]]]
+    ends = sim.model.pairs_among(near)
     x = sim.state.x.to_numpy().astype(np.float64)
     cut = ends[sim.terrain.crossed(x[ends[:, 0]], x[ends[:, 1]]), 0]
     for b, count in enumerate(np.bincount(owner[cut], minlength=len(bodies))):

@@ -30,6 +30,7 @@ from ... import runtime
 from ..allocation import allocate, page_aligned_vectors
 from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
+from ..stencil import NAME as STENCIL, StencilForces, check_lattice
 from ..linalg import SkylineCholesky
 from ..scalar_fields import assign
 from .options import Config, choice
@@ -69,14 +70,17 @@ class IntegratorConfig(Config):
 class ExplicitConfig(IntegratorConfig):
     """The explicit methods' options: launches, and how the force pass sums spring forces."""
 
-    forces: str = choice("auto", ("auto", "scatter", "per_spring", "gather"),
+    forces: str = choice("auto", ("auto", "scatter", "per_spring", "gather", "stencil"),
                          "scatter: each spring once, added to both ends; per_spring: each spring once, stored; "
-                         "gather: each particle evaluates its springs; auto: by backend and fast math")
+                         "gather: each particle evaluates its springs; stencil: gather with the springs found "
+                         "by lattice arithmetic, none stored (cube bodies); auto: by backend and fast math")
 
     def resolve(self, arch: str, fast_math: bool, counts: Counts) -> "ExplicitConfig":
         out = super().resolve(arch, fast_math, counts)
         if out.forces == "auto":
             out = out.but(forces=auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math))
+        if out.forces == STENCIL:
+            check_lattice(counts.lattice)
         return out
 
 
@@ -141,7 +145,10 @@ class Integrator:
         if self.implicit:
             model.ensure_adjacency()
         else:
-            self.forces = ForceEvaluator(model, terrain, self._force_strategy(), parallel=not self._serial())
+            strategy = self._force_strategy()
+            evaluator = StencilForces if strategy == STENCIL else ForceEvaluator
+            self.forces = evaluator(model, terrain, **({} if strategy == STENCIL else {"strategy": strategy}),
+                                    parallel=not self._serial())
         self.ping_pong = False  # True (``_use_ping_pong``) if _step_into replaces _step_body
         self._xo = self._vo = None  # the second state buffers of ping-pong steps
 
@@ -167,13 +174,18 @@ class Integrator:
         return FieldCounts.of(cls.buffer_table()) + cls.FIELDS
 
     @classmethod
+    def stores_springs(cls, options: Config) -> bool:
+        """Whether the model stores its springs for this integrator (all but the stencil pass's)."""
+        return cls.implicit or options.forces != STENCIL
+
+    @classmethod
     def buffers(cls, options: Config, arch: str, counts: Counts, real_bytes: int) -> Buffers:
         """What this integrator allocates for ``counts`` with ``options`` (resolved), besides the
         model's and the state's fields: the force pass's buffers (explicit methods), its buffer
         table and ``FIELDS``, and the second state of ping-pong steps. tests/test_memory.py checks
         it against the fields a real integrator allocates."""
         out = Buffers(cls.field_counts())
-        if not cls.implicit:
+        if not cls.implicit and options.forces != STENCIL:  # the stencil allocates O(bodies)
             out = out + pass_buffers(options.forces, counts, real_bytes)
         if cls.uses_ping_pong(options):
             out = out + Buffers(PING_PONG)
@@ -385,7 +397,7 @@ def running_target() -> tuple[str, bool]:
 
 def model_counts(model) -> Counts:
     """The ``Counts`` of a built model (the envelope read from its springs, only if asked for)."""
-    return Counts(model.n_particles, model.n_springs,
+    return Counts(model.n_particles, model.n_springs, lattice=model._lattice,
                   envelope=lambda: SkylineCholesky.envelope_size(model.n_particles, model.pairs_np))
 
 

@@ -17,6 +17,7 @@ import taichi as ti
 
 from ..allocation import page_aligned_vectors
 from ..footprint import VEC, Buffers, FieldCounts, per_particle
+from ..stencil import GATHERING
 from .base import MB, Integrator, register
 from . import linear_stability
 
@@ -61,7 +62,7 @@ class ExplicitRungeKutta(Integrator):
     @classmethod
     def uses_ping_pong(cls, options) -> bool:
         """One stage with gathered forces reads the old state while writing the new: ping-pong."""
-        return len(cls.b) == 1 and options.forces == "gather"
+        return len(cls.b) == 1 and options.forces in GATHERING
 
     @classmethod
     def buffers(cls, options, arch, counts, real_bytes) -> Buffers:
@@ -169,7 +170,7 @@ class SemiImplicitEuler(Integrator):
     @classmethod
     def uses_ping_pong(cls, options) -> bool:
         """Gathered forces read the old state while the step writes the new: ping-pong."""
-        return options.forces == "gather"
+        return options.forces in GATHERING
 
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):

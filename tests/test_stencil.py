@@ -1,0 +1,145 @@
+"""The stencil force pass (solver.forces = stencil): the same forces as the stored-spring passes,
+no spring stored and none counted by the memory estimate, no NaN from zero-length springs, NaN
+caught under fast math, run-time stiffness, bit-identical repeats, mesh bodies refused."""
+import numpy as np
+import pytest
+
+from taichi_soft import runtime
+from taichi_soft.errors import UserError
+from taichi_soft.sim import memory
+from taichi_soft.sim.footprint import MODEL_SPRINGS
+from taichi_soft.sim.integrators import REGISTRY
+from taichi_soft.sim.scene import load_scene
+
+from conftest import restart_taichi
+from test_memory import _field_bytes, _fields
+
+EXPLICIT = [name for name, cls in REGISTRY.items() if not cls.implicit]
+# The default cube, started deformed and turned so that it lands on an edge within the second:
+# every kind of spring and damper works, and the plane's contact too.
+DEFORMED = ["body.0.initial_stretch=[1.2,0.85,1.1]", "body.0.center=[0,3.2,0]"]
+DT = 5e-4  # [s]: stable for every explicit method on the default cube (velocity Verlet's limit ~1 ms)
+# Positions after 1 s [m]: the stencil sums a particle's springs in the gather's row order, so
+# with IEEE arithmetic the two agree bit for bit; with fast math the compiler may reorder each
+# sum differently per kernel (a few ulps per step, grown by the landing).
+TOL_FAST_MATH = 1e-9
+
+
+def _final(make_sim, name, forces, sets=()):
+    sim = make_sim("plane", DEFORMED + list(sets), integrator=name, dt=DT, options={"forces": forces})
+    assert sim.advance(int(round(1.0 / DT))) == int(round(1.0 / DT))
+    return sim
+
+
+@pytest.mark.parametrize("name", EXPLICIT)
+def test_same_answers_as_the_stored_spring_passes(make_sim, name):
+    """Every explicit method, 1 s on the default cube: bit-identical to the gather (IEEE
+    arithmetic, the suite's setting), to rounding (1e-12 m) to the scatter, and the cube moved."""
+    x0 = None
+    out = {}
+    for forces in ("stencil", "gather", "scatter"):
+        sim = _final(make_sim, name, forces)
+        x0 = sim.model.x0_np if x0 is None else x0
+        out[forces] = sim.state.numpy()[0]
+        assert sim.model.springs_stored() == (forces != "stencil")
+    assert np.array_equal(out["stencil"], out["gather"])
+    assert np.abs(out["stencil"] - out["scatter"]).max() <= 1e-12
+    assert np.abs(out["stencil"] - x0).max() > 1.0  # it fell and landed
+
+
+def test_same_answers_with_fast_math(make_sim, taichi_runtime):
+    """With fast math (the command line's default) the stencil and the gather agree to
+    TOL_FAST_MATH after 1 s, for the one- and the four-stage method."""
+    try:
+        runtime.init("cpu", "f64", fast_math=True)
+        for name in ("semi_implicit_euler", "rk4"):
+            a = _final(make_sim, name, "stencil").state.numpy()[0]
+            b = _final(make_sim, name, "gather").state.numpy()[0]
+            assert np.abs(a - b).max() <= TOL_FAST_MATH, name
+    finally:
+        restart_taichi(taichi_runtime)
+
+
+def test_repeat_runs_are_bit_identical(make_sim):
+    sim = _final(make_sim, "semi_implicit_euler", "stencil")
+    first = sim.state.numpy()
+    sim.reset()
+    sim.integrator.reset()
+    assert sim.advance(int(round(1.0 / DT))) == int(round(1.0 / DT))
+    again = sim.state.numpy()
+    assert all(np.array_equal(a, b) for a, b in zip(first, again))
+
+
+def test_memory_estimate_counts_no_springs(make_sim):
+    """The fields a stencil run allocates are what the estimate says, the model's springs not among
+    them: per particle the model's masses, the state and the ping-pong state (8 vectors + 2 reals)."""
+    n = 8
+    for name in EXPLICIT:
+        sim = make_sim("plane", [f"body.0.n={n}"], integrator=name, options={"forces": "stencil"})
+        n_p = sim.model.n_particles
+        fields = _fields([sim.model, sim.state, sim.terrain, sim.diagnostics, sim.integrator])
+        scaling = sum(_field_bytes(f) for f in fields if f.shape and f.shape[0] >= n_p)
+        data = load_scene("plane", [f"body.0.n={n}", "solver.forces=stencil"]).data
+        est = memory.estimate(data, name, "f64", "cpu", fast_math=False)
+        assert scaling == est["fields"], name
+        stored = memory.estimate(load_scene("plane", [f"body.0.n={n}", "solver.forces=gather"]).data,
+                                 name, "f64", "cpu", fast_math=False)
+        assert stored["fields"] - est["fields"] >= MODEL_SPRINGS.bytes(n_p, sim.model.n_springs, 8)
+        if name == "semi_implicit_euler":
+            assert est["fields"] == n_p * (2 + 6 + 6) * 8
+
+
+def test_zero_length_springs_give_no_nan(make_sim):
+    """Every particle at one point: every spring has length 0, so no force (no NaN): one step of
+    free fall, v = g dt."""
+    for name in EXPLICIT:
+        sim = make_sim("plane", ["body.0.n=4"], integrator=name, dt=1e-3, options={"forces": "stencil"})
+        x, v = sim.state.numpy()
+        sim.state.set(np.broadcast_to(x.mean(axis=0), x.shape).copy(), np.zeros_like(v))
+        assert sim.advance(1) == 1 and not sim.integrator.diverged, name
+        x, v = sim.state.numpy()
+        assert np.isfinite(x).all() and np.isfinite(v).all()
+        assert np.allclose(v, [0.0, -9.8e-3, 0.0], rtol=0, atol=1e-12), name
+
+
+def test_nan_caught_under_fast_math(make_sim, taichi_runtime):
+    try:
+        runtime.init("cpu", "f64", fast_math=True)
+        for bad in (np.nan, np.inf):
+            sim = make_sim("plane", ["body.0.n=4"], integrator="semi_implicit_euler", options={"forces": "stencil"})
+            x, v = sim.state.numpy()
+            v[5, 1] = bad
+            sim.state.set(x, v)
+            sim.advance(3)
+            assert sim.integrator.diverged, bad
+    finally:
+        restart_taichi(taichi_runtime)
+
+
+def test_run_time_stiffness_acts(make_sim):
+    """Stiffness changed after the first steps (no recompile) gives what a cube built with it gives."""
+    changed = make_sim("plane", DEFORMED, integrator="semi_implicit_euler", dt=DT, options={"forces": "stencil"})
+    changed.advance(1)  # compiled and stepped with the scene's stiffness
+    changed.reset()
+    changed.integrator.reset()
+    for kind in ("stretch", "shear", "bend"):
+        changed.model.set_spring_params(0, kind, k=5000.0, damping=20.0)
+    changed.advance(400)
+    sets = [f"body.0.{kind}={{k=5000.0,damping=20.0}}" for kind in ("stretch", "shear", "bend")]
+    built = make_sim("plane", DEFORMED + sets, integrator="semi_implicit_euler", dt=DT, options={"forces": "stencil"})
+    built.advance(400)
+    plain = make_sim("plane", DEFORMED, integrator="semi_implicit_euler", dt=DT, options={"forces": "stencil"})
+    plain.advance(400)
+    assert np.array_equal(changed.state.numpy()[0], built.state.numpy()[0])
+    assert np.abs(changed.state.numpy()[0] - plain.state.numpy()[0]).max() > 1e-3
+
+
+def test_mesh_bodies_refused_before_any_work():
+    data = load_scene("torus", ["solver.forces=stencil"]).data
+    with pytest.raises(UserError, match="only cube bodies"):
+        memory.estimate(data, "semi_implicit_euler", "f64", "cpu")
+
+
+def test_cli_refuses_mesh_with_exit_2(cli):
+    r = cli("run", "--scene", "torus", "--set", "solver.forces=stencil", "--duration", "0.01")
+    assert r.returncode == 2 and "only cube bodies" in r.stderr and len(r.stderr.strip().splitlines()) == 1
