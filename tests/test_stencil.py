@@ -143,3 +143,10 @@ def test_mesh_bodies_refused_before_any_work():
 def test_cli_refuses_mesh_with_exit_2(cli):
     r = cli("run", "--scene", "torus", "--set", "solver.forces=stencil", "--duration", "0.01")
     assert r.returncode == 2 and "only cube bodies" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_velocity_verlet_refuses_the_stencil_before_any_work():
+    """Its damper corrector reads the stored springs: one clear line, not a Taichi compile error."""
+    data = load_scene("plane", ["solver.forces=stencil"]).data
+    with pytest.raises(UserError, match="velocity_verlet: solver.forces = stencil"):
+        memory.estimate(data, "velocity_verlet", "f64", "cpu")

@@ -13,12 +13,15 @@ result in place (it reads neighbours only from a stage buffer); one-stage method
 state itself (``Integrator.ping_pong``).
 """
 
+from dataclasses import dataclass
+
 import taichi as ti
 
 from ..allocation import page_aligned_vectors
 from ..footprint import VEC, Buffers, FieldCounts, per_particle
-from ..stencil import GATHERING
-from .base import MB, Integrator, register
+from ...errors import UserError
+from ..stencil import GATHERING, NAME as STENCIL
+from .base import MB, ExplicitConfig, Integrator, register
 from . import linear_stability
 
 
@@ -209,6 +212,17 @@ class VelocityVerlet(Integrator):
     time-reversible. The terrain answers the drift (``_drift``); no pass writes what a neighbour
     reads in the same loop, so every force strategy steps in place.
     """
+
+    @dataclass(frozen=True)
+    class Config(ExplicitConfig):
+        """The explicit options; the damper-only corrector reads the stored springs, so not the stencil."""
+
+        def resolve(self, arch: str, fast_math: bool, counts) -> "ExplicitConfig":
+            out = super().resolve(arch, fast_math, counts)
+            if out.forces == STENCIL:
+                raise UserError("velocity_verlet: solver.forces = stencil is not supported (its damper "
+                                "corrector reads the stored springs); use gather or scatter")
+            return out
 
     name = "velocity_verlet"
     amplification = staticmethod(linear_stability.velocity_verlet)
