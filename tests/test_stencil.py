@@ -14,7 +14,8 @@ from taichi_soft.sim.scene import load_scene
 from conftest import restart_taichi
 from test_memory import _field_bytes, _fields
 
-EXPLICIT = [name for name, cls in REGISTRY.items() if not cls.implicit]
+# velocity_verlet refuses the stencil (its damper corrector reads the stored springs: tested below)
+EXPLICIT = [name for name, cls in REGISTRY.items() if not cls.implicit and name != "velocity_verlet"]
 # The default cube, started deformed and turned so that it lands on an edge within the second:
 # every kind of spring and damper works, and the plane's contact too.
 DEFORMED = ["body.0.initial_stretch=[1.2,0.85,1.1]", "body.0.center=[0,3.2,0]"]
