@@ -143,7 +143,7 @@ class ExplicitEuler(ExplicitRungeKutta):
 
     name = "explicit_euler"
     amplification = staticmethod(linear_stability.taylor(1))
-    sweep_dt_cap = 2e-3  # with the damper corrector its linear limit is semi-implicit Euler's (1.9 ms on the default cube)
+    sweep_dt_cap = 2e-3
     BASE_BYTES = 138 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 1
     force_evals = 1
@@ -159,7 +159,7 @@ class SemiImplicitEuler(Integrator):
 
     name = "semi_implicit_euler"
     amplification = staticmethod(linear_stability.symplectic_euler)
-    sweep_dt_cap = 2e-3  # with the damper corrector its linear limit is semi-implicit Euler's (1.9 ms on the default cube)
+    sweep_dt_cap = 2e-3
     BASE_BYTES = 138 * MB  # measured (memory.py): process, runtime, compiled kernels
     order = 1
     force_evals = 1
