@@ -1,4 +1,4 @@
-"""A Taichi 1.7.4 fault, reduced from the implicit pair list (pair_list._collect, issue 23): inside a
+"""A Taichi 1.7.4 fault, reduced from the implicit pair list (pair_list._collect): inside a
 serialized loop, a whole-vector read of two 0-D vector fields just after atomics on their components
 returns the values of the first pass, when the IR passes are on (``advanced_optimization``).
 

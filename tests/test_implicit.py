@@ -1,4 +1,4 @@
-"""Acceptance tests of the implicit integrators (issues #4, #11): implicit_euler and fast_mass_spring.
+"""Acceptance tests of the implicit integrators: implicit_euler and fast_mass_spring.
 
 Small cubes where the property does not depend on size; the default 10^3 cube for the
 stability checks at dt = 1/60 s, which the issue states for it. Simulations of the default cube

@@ -1,9 +1,8 @@
 """The view ray against the drawn surface, on the device: one kernel launch per press.
 
-``picking.pick_surface`` does the same in numpy, but needs the positions read back first, and in
-the demo's press frame (Python and numpy cold after a frame of drawing) the two cost 0.5 ms of a
-1.2 ms press at n = 10 (measured with the frame timer, 2026-12-02). Here the positions stay in
-their field: every triangle is tested in parallel (Moller-Trumbore), the nearest hit is kept by an
+``picking.pick_surface`` does the same in numpy, but needs the positions read back first, which
+is most of a press's time (docs/decisions/device-side-pick.md). Here the positions stay in their
+field: every triangle is tested in parallel (Moller-Trumbore), the nearest hit is kept by an
 atomic minimum (then the first triangle at that distance), and the triangle's corner nearest the
 hit point is the answer. Same result as ``pick_surface`` (tests/test_demo.py compares them).
 """

@@ -20,10 +20,8 @@ cubes) and a unit normal n from j toward i (``BodyGrid._pair_normal``):
 Two bodies touch at most at the distance sqrt(R_ij^2 + s^2) <= ``SPAN`` x 2 r_max, which sizes the
 hash cells. A particle passing through a face would have to come within 0.71 spacings of a face's
 particles; a body with a much coarser lattice than its neighbour (over ~1.4x the spacing) could let
-the finer one's particles through its edges. Cost: on the pile (semi-implicit Euler, 1 ms,
-2026-12-04, 2-core VM, medians of 3 alternating runs) a whole step took 0.20 ms against 0.126 ms
-with spheres (1.6x); about half of the difference is the larger hash cells (SPAN), the rest the
-face normals. The implicit solvers' contact inside the step (``integrators/implicit/pairs.py``)
+the finer one's particles through its edges. Faces cost more than spheres, mostly the larger hash
+cells (docs/decisions/body-contact-face-normals.md). The implicit solvers' contact inside the step (``integrators/implicit/pairs.py``)
 uses the same geometry (``BodyGrid``), with each pair's normal and face frozen for the step and an
 edge particle's face normals blended (``_blended_face_normal``) rather than the best one chosen.
 

@@ -1,12 +1,9 @@
 """Setting several 0-D fields (scalars, small vectors) from Python in one kernel launch.
 
 Writing a 0-D field from Python (``f[None] = v``) runs a writer kernel that Taichi compiles for
-that field, and for each component of a vector field, the first time: about 20 ms each on the
-2-core VM. A simulation's terrain, model and integrator set 19-86 of them as they are built; in
-the test suite, which builds hundreds of simulations, compiling writers and readers of single
-field elements was 10 % of the CPU time (py-spy over a cold-cache run, 2026-12-06). ``assign``
-writes a set of fields with one kernel, compiled once per set (25-60 ms for 5-15 fields): most
-sets are written once per simulation, so what it saves is the compiles.
+that field, and for each component of a vector field, the first time; a simulation sets dozens as
+it is built. ``assign`` writes a set of fields with one kernel, compiled once per set: what it
+saves is the compiles (docs/decisions/batched-scalar-writes.md).
 
 The values travel as f64 and are cast to each field's type in the kernel: the same rounding as
 Taichi's own writer for f32 fields, exact for integers in i32 fields (others are refused). On a

@@ -35,10 +35,8 @@ from ..linalg import SkylineCholesky
 from ..scalar_fields import assign
 from .options import Config, choice
 
-# Parallel launches win above this many particles on a CPU. Implicit solvers (many launches per
-# step in parallel mode): 4096. Explicit methods, semi-implicit Euler on the 2-core VM, f64,
-# steps/s serial / parallel: n = 16 (4096 particles) 2990 / 1873, n = 20 1468 / 1176,
-# n = 24 838 / 775, n = 28 (21,952) 520 / 524, n = 32 338 / 435.
+# Parallel launches win above this many particles on a CPU; implicit solvers launch many kernels
+# a step, so they go parallel sooner (docs/decisions/serial-launch-threshold.md).
 SERIAL_MAX_PARTICLES = 4096
 SERIAL_MAX_PARTICLES_EXPLICIT = 20000
 NOT_DIVERGED = 2**31 - 1

@@ -38,13 +38,9 @@ from ...collision import SPAN, BodyGrid, table_size
 PAIRS_PER_PARTICLE = 12
 RHO = 0.25  # tube radius, in units of the largest contact distance R_max
 # How sharply a pair's normal follows the faces of an edge or corner particle
-# (``BodyGrid._blended_face_normal``). The normal is frozen for a step, and the explicit methods'
-# choice of the best-facing face jumps between steps: on the pile over 3 s at 1/60 s that added 17.9 /
-# 17.1 kJ of penalty energy at steps' starts (implicit_euler / fast_mass_spring). Measured
-# 2026-12-07 on the 2-core Intel Xeon VM, sharpness against that energy and against bench contact's
-# slide at mu = 0.3 (mu g = 2.94 m/s^2): 20: 10.6 / 16.4 kJ; 8: 5.8 / 7.3 kJ; 4: 3.8 / 3.8 kJ,
-# 3.04 / 2.95 m/s^2 (the choice: 3.11 / 3.04); 2: 2.4 / 3.1 kJ, but 3.46 / 3.42 m/s^2 and 0.15 m/s^2
-# at mu = 0, the blend rounding the faces' edges (docs/benchmarks/ENERGY.md).
+# (``BodyGrid._blended_face_normal``): the normal is frozen for a step, and a best-facing face that
+# jumps between steps adds penalty energy at steps' starts; sharper blends add more, softer ones round
+# the faces' edges and add friction (docs/decisions/body-contact-face-normals.md).
 FACE_BLEND = 4.0
 
 

@@ -123,8 +123,7 @@ def accounts(names: dict):
 
 
 # Read and zeroed by one kernel: Taichi's ``to_numpy`` and ``fill`` of a struct field compile a
-# kernel per member, about 20 ms each on the 2-core VM; in a cold test-suite run those were 9 % of
-# the CPU time (py-spy, 2026-12-06), for every implicit solver built.
+# kernel per member (docs/decisions/batched-scalar-writes.md).
 def read_accounts(acc) -> dict:
     """The members of an ``accounts`` field as floats by name, then zeroed."""
     values = np.zeros(len(acc.keys), dtype=np.float64)
