@@ -28,7 +28,7 @@ def main(argv: list[str]) -> None:
     ref = P.trajectory(ref_sim, ref_dt, t_end)
     s = P.summary(ref)
     print(f"x{scale:g} reference rk4 dt={ref_dt:.3g} s: apex={s['apex']:.3f} m rest={s['rest_time']:.3f} s", flush=True)
-    counted = ("energy_clamped_steps", "restitution_limited_steps", "unconverged_steps")
+    counted = ("energy_clamped_steps", "restitution_limited_steps", "unconverged_steps", "sdirk2_fallback_steps")
     for name in names:
         sim = P.build(scene, sets, name, options=options)
         P.set_stiffness(sim, scale, base)

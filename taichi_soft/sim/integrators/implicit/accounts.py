@@ -45,7 +45,10 @@ class StepAccounts:
     @ti.func
     def record(self, residual, tol2):
         res = ti.cast(residual, ti.f64)
-        self.acc.steps[None] += 1.0
+        stage = self.scheme.stage[None]
+        # An SDIRK2 step's solves add up to one step (its first stage, a second stage taken again).
+        if stage == 0 or stage == 3 or (stage == 2 and self.scheme.redo[None] == 0):
+            self.acc.steps[None] += 1.0
         self.acc.outer[None] += ti.cast(self.sc.outer[None], ti.f64)
         self.acc.cg[None] += ti.cast(self.sc.cg[None], ti.f64)
         self.acc.ls[None] += ti.cast(self.sc.backtracks[None], ti.f64)
@@ -55,6 +58,8 @@ class StepAccounts:
         self.acc.bounce[None] += ti.cast(self.sc.bounce_limited[None], ti.f64)
         self.acc.lb_restarts[None] += ti.cast(self.sc.lb_restarts[None], ti.f64)
         self.acc.bdf2[None] += ti.cast(self.scheme.bdf2_step[None], ti.f64)
+        if self.scheme.stage[None] == 3:
+            self.acc.sdirk2_fallback[None] += 1.0
         if self.sc.ls_failed[None]:
             self.acc.failed[None] += 1.0
             self.acc.failed_res[None] = ti.max(self.acc.failed_res[None], res)
@@ -88,6 +93,7 @@ def contact_stats(a: dict, steps: float, pairs) -> dict:
         "energy_clamped_steps": int(a["clamped"]),
         "restitution_limited_steps": int(a["bounce"]),
         "bdf2_steps": int(a["bdf2"]),
+        "sdirk2_fallback_steps": int(a["sdirk2_fallback"]),
         "unconverged_steps": int(a["unconverged"]),
         **(pairs.stats(steps) if pairs is not None else {}),
     }

@@ -37,7 +37,7 @@ from .options import ImplicitConfig
 from .pairs import PairContacts
 from .restitution import BOUNCE_CG_TOL, BounceSpread
 from .scalars import START_HALVINGS, counters, step_scalars
-from .scheme import StepScheme
+from .scheme import SDIRK_GAMMA, StepScheme
 from .step_end import StepEnd
 from .walk import CG_DIRECTION, STEP, InKernel, Launches
 
@@ -107,6 +107,7 @@ class ImplicitIntegrator(Integrator):
         # Values only after every field is allocated: the first write closes the pending SNode
         # tree, and the next field would open another (the runtime holds 512: allocation.MAX_TREES).
         self.scheme.use_bdf2(o.scheme == "bdf2")
+        self.stages = 2 if o.scheme == "sdirk2" else 1  # SDIRK2: two solves a step
         assign({self.tol_acc: o.residual_tol, self.roundoff: 16 * np.finfo(model.real).eps,
                 self.end.energy_tol: 1e3 * np.finfo(model.real).eps,
                 self.objective.friction_velocity: o.friction_velocity,
@@ -168,11 +169,11 @@ class ImplicitIntegrator(Integrator):
         self.objective.fric_eps[None] = self.objective.friction_velocity[None] * he
         for s in range(m.n_springs):
             # The damper direction, frozen over the step: at x_n for backward Euler (a first-order
-            # lag, like the method); at the predictor y = x_{n+1} + O(h^2) for BDF2, or the lag
-            # alone would make it first order.
+            # lag, like the method); at the predictor y = x_{n+1} + O(h^2) for BDF2 and SDIRK2's
+            # stages, or the lag alone would make them first order.
             a, b = m.spring_ends[s][0], m.spring_ends[s][1]
             d = x[a] - x[b]
-            if self.scheme.bdf2_step[None]:
+            if self.scheme.bdf2_step[None] or self.scheme.stage[None] == 1 or self.scheme.stage[None] == 2:
                 d += self.objective.yd[a] - self.objective.yd[b]
             length = d.norm()
             self.objective.spring_dir[s] = d / length if length > 0 else ti.Vector.zero(float, 3)
@@ -261,6 +262,11 @@ class ImplicitIntegrator(Integrator):
             # m g y summed over the body, rounded away the balance of a step in f32.
             self.sc.h_start[None] = self.sc.k_start[None] + self.sc.e_trial[None]
             self.sc.h_scale[None] = self.sc.k_start[None] + self.sc.e_trial[None]
+            if self.scheme.stage[None] == 1:
+                self.scheme.h_step[None] = self.sc.h_start[None]
+            elif self.scheme.stage[None] >= 2:
+                # The account is the whole step's: its start energy, gravity measured from X1.
+                self.sc.h_start[None] = self.scheme.h_step[None] + self.sc.g_stage[None]
             self._line_search_begin(self.sc.t_max[None], START_HALVINGS)
         self.sc.phase[None] = ti.min(phase + 1, 2)
 
@@ -316,18 +322,55 @@ class ImplicitIntegrator(Integrator):
     # -- the drivers: one source (walk.py), run inside the serial kernel or from Python scope -----
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
-        STEP.func(self, self.in_kernel, x, v, dt, step)
+        if ti.static(self.stages == 1):
+            STEP.func(self, self.in_kernel, x, v, dt, step)
+        else:
+            # SDIRK2: two stages; a second stage that gained energy is taken again from X1 as a
+            # backward-Euler solve over the same time (counted: sdirk2_fallback_steps).
+            for stage in range(3):
+                if stage < 2 or self.scheme.redo[None]:
+                    if stage == 2:
+                        self._restore_stage(x, v)
+                    self.scheme.stage[None] = stage + 1
+                    STEP.func(self, self.in_kernel, x, v, self._stage_dt(stage, dt), step)
 
     def _advance_parallel(self, state, dt: float, n_steps: int) -> int:
         """``n_steps`` steps of ``dt`` [s], one launch per phase; returns the steps taken (to divergence)."""
         start = self._step_counter
         for k in range(n_steps):
-            STEP.py(self, self.launches, state.x, state.v, dt, start + k)
+            for stage in range(self.stages + (self.stages > 1)):
+                if stage == 2:
+                    if not self.scheme.redo[None]:
+                        break
+                    self._k_restore_stage(state.x, state.v)
+                if self.stages > 1:
+                    self.scheme.stage[None] = stage + 1
+                STEP.py(self, self.launches, state.x, state.v, self._stage_dt(stage, dt), start + k)
             if self.diverged:
                 break
         self._step_counter += n_steps
         bad = int(self.diverged_step[None])
         return bad - start + 1 if self.diverged else n_steps
+
+    @ti.pyfunc
+    def _stage_dt(self, stage, dt):
+        """The time [s] solve ``stage`` (0, 1) of a step of ``dt`` covers: all of it, or SDIRK2's
+        gamma h then (1 - gamma) h."""
+        out = dt
+        if self.stages > 1:
+            out = SDIRK_GAMMA * dt if stage == 0 else (1.0 - SDIRK_GAMMA) * dt
+        return out
+
+    @ti.func
+    def _restore_stage(self, x: ti.template(), v: ti.template()):
+        """Back to the first stage's end (X1, V1: the second stage's start, kept by the objective)."""
+        for i in range(self.n):
+            x[i] = self.objective.x_prev[i]
+            v[i] = self.objective.v_prev[i]
+
+    @ti.kernel
+    def _k_restore_stage(self, x: ti.template(), v: ti.template()):
+        self._restore_stage(x, v)
 
     def _serial_ir_passes(self) -> bool:
         # With body pairs the one-launch step is several times the one-body kernel, and Taichi's IR
@@ -337,7 +380,7 @@ class ImplicitIntegrator(Integrator):
     # -- public API -----------------------------------------------------------------------------------
     def advance(self, state, dt: float, n_steps: int) -> int:
         self._sync_masses()
-        self._prepare(dt)
+        self._prepare(self._stage_dt(0, dt))  # both SDIRK2 stages solve over gamma h
         if self._serial() or n_steps <= 0 or self.diverged:
             return super().advance(state, dt, n_steps)
         return self._advance_parallel(state, dt, n_steps)

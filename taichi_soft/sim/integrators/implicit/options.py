@@ -18,9 +18,10 @@ class ImplicitConfig(IntegratorConfig):
     """Options of both solvers: the scheme, contact, line search, stopping, the last-resort energy clamp."""
 
     serial_max_particles: ClassVar[int] = SERIAL_MAX_PARTICLES  # many launches per step in parallel mode
-    scheme: str = choice("backward_euler", ("bdf2", "backward_euler"),
+    scheme: str = choice("backward_euler", ("bdf2", "sdirk2", "backward_euler"),
                          "time discretisation: bdf2 (second order) on steps whose history is smooth and that touch "
-                         "no terrain, backward Euler elsewhere; backward_euler (first order) on every step")
+                         "no terrain, backward Euler elsewhere; sdirk2 (second order, L-stable, two solves a step) "
+                         "on every step; backward_euler (first order) on every step")
     friction_velocity: float = option(1e-3, number_in(0.0, 1.0, lo_open=True), "a number in (0, 1]",
                                       "sliding speed [m/s] below which friction is smoothed (static-friction creep)")
     velocity_tol: float = option(1e-3, number_in(0.0, 1e3), "a number in [0, 1000]",

@@ -30,6 +30,7 @@ STEP_REALS = {
     "e_trial": "spring energy at the trial point [J]",
     "e_cur": "spring energy at the current iterate [J]",
     "h_start": "total energy (kinetic + springs; gravity is measured from x_n) at the start of the step [J]",
+    "g_stage": "SDIRK2's second stage: sum m g . (X1 - x_n), gravity's energy at x_n measured from X1 [J]",
     "h_scale": "kinetic + springs at the start: with the end's energies, the scale of the balance's round-off [J]",
     "k_start": "kinetic energy at the start [J]",
     "lam_change": "sum |lam_candidate - lam_frozen| over held particles [kg m]",
@@ -86,6 +87,7 @@ STEP_ACCOUNTS = {
     "failed": "steps whose line search failed unconverged",
     "failed_res": "the largest residual such a step ended with (a maximum, not a sum) [m/s^2]",
     "bdf2": "BDF2 steps",
+    "sdirk2_fallback": "SDIRK2 steps whose second stage gained energy and was taken again as backward Euler",
     "unconverged": "steps that ended above UNCONVERGED_FACTOR times the tolerance",
 }
 

@@ -33,6 +33,11 @@ from ...allocation import allocate
 from ...footprint import VEC, per_particle
 
 
+SQRT2 = 2.0 ** 0.5
+SDIRK_GAMMA = 1.0 - 1.0 / SQRT2  # Alexander's L-stable SDIRK2: both stages solve over gamma h
+SDIRK_STAGE2_H = SDIRK_GAMMA / (1.0 - SDIRK_GAMMA)  # the second stage's gamma h per its time (1 - gamma) h
+
+
 @ti.data_oriented
 class StepScheme:
     """Each step's scheme and predictor: a part of ``ImplicitIntegrator``.
@@ -50,6 +55,7 @@ class StepScheme:
         "u_base": per_particle("x^ - x_n (0 for backward Euler) [m]", VEC),
         "x_end": per_particle("position the last step left [m]", VEC),
         "v_end": per_particle("velocity the last step left [m/s]", VEC),
+        "v_step": per_particle("velocity at the start of the whole step (SDIRK2's stages) [m/s]", VEC),
     }
 
     def __init__(self, model, terrain, sc, contact):
@@ -66,6 +72,9 @@ class StepScheme:
         self.bdf2_step = ti.field(ti.i32, ())  # 1: this step is a BDF2 step
         self.dt_last = ti.field(float, ())  # h of the last step [s]
         self.h_eff = ti.field(float, ())  # h (backward Euler) or 2 h / 3 (BDF2) of this step [s]
+        self.stage = ti.field(ti.i32, ())  # SDIRK2: 1 or 2, the stage this solve is; 0: not SDIRK2
+        self.h_step = ti.field(float, ())  # SDIRK2: the energy the whole step began with [J]
+        self.redo = ti.field(ti.i32, ())  # SDIRK2: 1 = the second stage gained energy; take it as BE
 
     def use_bdf2(self, on: bool):
         """The option ``solver.scheme``: BDF2 where the history allows (True) or backward Euler."""
@@ -86,6 +95,7 @@ class StepScheme:
         m = self.model
         he = ti.cast(2.0 / 3.0, float) * dt
         g = m.gravity[None]
+        stage = self.stage[None]
         self.bdf2_step[None] = self.bdf2_on[None] * self.history_ok[None] * ti.cast(self.dt_last[None] == dt, ti.i32)
         if ti.static(backward_euler_only):
             self.bdf2_step[None] = 0
@@ -101,11 +111,25 @@ class StepScheme:
                     d2, _n2 = self.terrain.query(i, x[i] + yb)
                     if ti.min(d0, d1, d2) <= 0:
                         self.bdf2_step[None] = 0
+        if stage > 0:
+            self.bdf2_step[None] = 0
         ok = self.bdf2_step[None]
         self.h_eff[None] = he if ok else dt
+        if stage == 2:
+            self.h_eff[None] = SDIRK_STAGE2_H * dt
+        if stage == 1:
+            self.redo[None] = 0
+            self.sc.g_stage[None] = 0.0
         self.sc.dt_step[None] = dt
         for i in range(self.n):
-            if ok and self.model.free(i):
+            if stage == 1:
+                self.v_step[i] = v[i]
+            elif stage == 2 and self.model.free(i):
+                self.sc.g_stage[None] += self.model.mass[i] * g.dot(x[i] - x_prev[i])
+        for i in range(self.n):
+            if stage == 2 and self.model.free(i):
+                self._stage2_base(i, x, v, dt, x_prev, v_prev, yd)
+            elif ok and self.model.free(i):
                 ub = (x[i] - x_prev[i]) / 3.0
                 self.u_base[i] = ub
                 yd[i] = ub + he * (4.0 * v[i] - v_prev[i]) / 3.0 + he * he * g
@@ -116,6 +140,29 @@ class StepScheme:
                 # pinned: moves with its own velocity over the true step; v = (u - u_base) / h_eff
                 yd[i] = dt * v[i]
                 self.u_base[i] = (dt - self.h_eff[None]) * v[i]
+
+    @ti.func
+    def _stage2_base(self, i, x: ti.template(), v: ti.template(), dt, x_prev: ti.template(),
+                     v_prev: ti.template(), yd: ti.template()):
+        """SDIRK2's second stage for particle i: a backward-Euler solve of length gamma h from
+        x^ = X1 + sqrt 2 (X1 - x_n), v^ = V1 + sqrt 2 (V1 - v_n) (x, v: the first stage's X1, V1;
+        x_prev, v_prev: x_n, v_n; dt: the stage's time (1 - gamma) h). A particle touching the
+        terrain at X1 is not extrapolated (x^ would lie inside): it starts a solve from X1 moving
+        along the surface."""
+        he = self.h_eff[None]
+        g = self.model.gravity[None]
+        ub = SQRT2 * (x[i] - x_prev[i])
+        vh = v[i] + SQRT2 * (v[i] - v_prev[i])
+        if ti.static(self.terrain.has_contact):
+            d0, n0 = self.terrain.query(i, x[i])
+            if self.contact.active[i] or d0 < self.terrain.epsilon[None]:
+                vh = v[i]
+                vn = n0.dot(vh)
+                if vn < 0:
+                    vh -= vn * n0
+                ub = (dt - he) * vh
+        self.u_base[i] = ub
+        yd[i] = ub + he * vh + he * he * g
 
     @ti.func
     def record(self, x: ti.template(), v: ti.template()):

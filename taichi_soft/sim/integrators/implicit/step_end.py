@@ -60,7 +60,16 @@ class StepEnd:
             vi = (self.objective.u[i] - self.scheme.u_base[i]) / dt
             delta = ti.Vector.zero(float, 3)
             if ti.static(self.terrain.has_contact):
-                delta = self.spread.split(i, self.contact.bounce(i, vi, x[i], self.objective.v_prev[i]))
+                # SDIRK2 bounces once, at the step's end, from the whole step's approach: a bounce
+                # at the first stage would be extrapolated into the second.
+                stage = self.scheme.stage[None]
+                ask = ti.Vector.zero(float, 3)
+                if stage != 1:
+                    approach = self.objective.v_prev[i]
+                    if stage >= 2:
+                        approach = self.scheme.v_step[i]
+                    ask = self.contact.bounce(i, vi, x[i], approach)
+                delta = self.spread.split(i, ask)
             if ti.static(self._has_pairs()):
                 delta += self.pairs.dv[i]
             self.v_new[i] = vi
@@ -105,7 +114,9 @@ class StepEnd:
         excess = self.sc.k_end[None] + self.sc.g_end[None] + self.sc.e_cur[None] - self.sc.h_start[None]
         f = ti.cast(1.0, float)
         noise = self.sc.h_scale[None] + self.sc.k_end[None] + ti.abs(self.sc.g_end[None])  # scale of its round-off
-        if self.clamp_on[None] and excess > self.energy_tol[None] * noise:
+        if self.scheme.stage[None] == 2 and excess > self.energy_tol[None] * noise:
+            self.scheme.redo[None] = 1  # SDIRK2: this stage is taken again as backward Euler
+        elif self.clamp_on[None] and excess > self.energy_tol[None] * noise:
             self.sc.clamped[None] = 1
             k_end = self.sc.k_end[None]
             if k_end > 0:
