@@ -37,8 +37,7 @@ def fresh_taichi(request, taichi_runtime):
     each runtime. A test that builds the same simulation as an earlier one, in any process, on a
     runtime started afresh allocates the same ids and loads that test's compiled kernels from
     ~/.cache/taichi instead of compiling them again; in one long-lived runtime every new object has
-    new ids, so nothing it compiles is found again. Measured 2026-12-06 on the 2-core VM, cold
-    cache: the suite's summed test time 1005 s -> 953 s, its wall 8:35 -> 8:07-8:11.
+    new ids, so nothing it compiles is found again (docs/decisions/fresh-runtime-per-test.md).
 
     A module whose fixtures or module-level caches keep Taichi fields or kernels from one test to
     the next must be marked ``pytestmark = pytest.mark.taichi_shared``: a field used after its
