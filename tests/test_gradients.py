@@ -1,4 +1,5 @@
-"""Forward-mode derivatives of semi-implicit Euler runs (sim/gradients.py) and the fit built on them.
+"""Forward-mode derivatives of semi-implicit Euler runs (sim/gradients.py) and the fit built on them
+(stepped by sim/tangent.py, as `fit` does).
 
 The stepper's answers are the engine's (to 1e-12 m), its derivatives match central finite
 differences (relative 1e-5), a wrong derivative fails that check, and a fit returns the truth
@@ -6,7 +7,7 @@ from a synthetic target started 2x off."""
 import numpy as np
 
 from taichi_soft.sim import Simulation, scene_from_dict
-from taichi_soft.sim import gradients
+from taichi_soft.sim import gradients, tangent
 from taichi_soft.sim.simulation import frame_steps
 
 DT = 1e-3
@@ -87,7 +88,7 @@ def test_a_wrong_derivative_fails_the_check(monkeypatch):
 def test_fit_recovers_stiffness_and_damping_from_free_vibration():
     sim = make(terrain=False)
     steps = frame_steps(1000, 30, DT)
-    problem = gradients.Problem(sim)
+    problem = tangent.TangentProblem(sim)  # what `fit` steps
     truth = problem.values()
     target = problem.trajectory(truth, steps)
     names = ["k_stretch", "kd_stretch"]
@@ -100,7 +101,7 @@ def test_fit_recovers_stiffness_and_damping_from_free_vibration():
 def test_fit_recovers_restitution_from_a_drop():
     sim = make(center_y=0.9, restitution=0.6)
     steps = frame_steps(400, 30, DT)  # the drop and the first bounce (docs/gradients.md: later, slower impacts make the loss piecewise)
-    problem = gradients.Problem(sim)
+    problem = tangent.TangentProblem(sim)  # what `fit` steps
     truth = problem.values()
     target = problem.trajectory(truth, steps)
     out = gradients.fit(problem, target, steps, ["restitution"], start=dict(truth, restitution=0.3), max_iters=40)

@@ -1,6 +1,6 @@
 """``fit``: find spring stiffness, damping, restitution, friction, gravity or mass that reproduce a
 recorded motion (a ``run --states`` file), by Levenberg-Marquardt on forward-mode derivatives
-(``sim/gradients.py``)."""
+(``sim/tangent.py``: one tangent-linear pass gives the run and its derivatives for every parameter)."""
 from __future__ import annotations
 
 import json
@@ -42,7 +42,7 @@ def _window(text: str | None):
 def cmd_fit(args) -> int:
     import numpy as np
 
-    from ..sim import gradients
+    from ..sim import gradients, tangent
 
     names = common.parse_name_list(args.params, "--params", list(gradients.PARAMS), "parameter",
                                    "name each parameter once, comma-separated")
@@ -78,7 +78,7 @@ def cmd_fit(args) -> int:
     sim = Simulation(scene)
     if target.shape[1:] != (sim.model.n_particles, 3):
         raise UserError(f"--target has {target.shape[1]} particles, the scene {sim.model.n_particles}")
-    problem = gradients.Problem(sim)
+    problem = tangent.TangentProblem(sim)
     start = problem.values()
     begin = time.perf_counter()
 

@@ -2,9 +2,10 @@
 
 Taichi's own forward mode (``ti.ad.FwdMode``) could not compile the engine's step kernels in
 Taichi 1.7.4 (docs/gradients.md: the serial many-step kernel fails in ``auto_diff.cpp`` with
-"Not supported", the parallel one with a ``MatrixPtrStmt`` assertion), so this module is the one
-separate stepper of the project: semi-implicit Euler with springs, dampers, gravity and the plane's
-contact model, written once in numpy over complex numbers. A parameter p is given an imaginary
+"Not supported", the parallel one with a ``MatrixPtrStmt`` assertion), so this module is the
+reference stepper: semi-implicit Euler with springs, dampers, gravity and the plane's contact
+model, written once in numpy over complex numbers (``tangent.py`` is the fast one that ``fit``
+uses; its tests check it against this one). A parameter p is given an imaginary
 part ``1j * H``; every operation is analytic in it (lengths are ``sqrt(d . d)``, branches and
 min/max look at real parts), so Im(y) / H is dy/dp to rounding (complex-step differentiation:
 no subtraction, hence no cancellation, the same as one forward-mode dual pass). One pass per
@@ -173,8 +174,8 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
         max_iters: int = 30, tol: float = 1e-12, progress=None) -> dict:
     """Levenberg-Marquardt with bounds on ``params`` so that the positions at ``frame_steps``
     match ``target`` [frames, particles, 3]. Loss: mean over frames and particles of the squared
-    distance [m^2]. Each iteration takes one Jacobian (one pass per parameter) and one or more
-    trial runs. Returns values, Gauss-Newton standard errors, loss history, counts.
+    distance [m^2]. Each iteration takes one Jacobian (``problem.jacobian``: one pass per parameter
+    here, one pass for all of them with ``tangent.TangentProblem``) and one or more trial runs. Returns values, Gauss-Newton standard errors, loss history, counts.
     ``progress(iteration, loss, values)`` is called after each iteration."""
     values = dict(problem.values() if start is None else start)
     scale = {p: abs(values[p]) if values[p] != 0 else 1.0 for p in params}
