@@ -15,8 +15,8 @@ Taichi's own forward mode (``ti.ad.FwdMode``) fails to compile these kernels in 
 (docs/gradients.md), hence the hand-written tangents. Fields are f64 whatever the run's
 precision: a fit's Gauss-Newton steps need derivatives to many digits.
 
-Memory per particle: x, v, their 2 P tangents and the force sums (6 + 6 P + 3 + 3 P reals);
-per spring: ends, rest length and group; the recorded frames are numpy arrays (3 (1 + P) reals
+Memory per particle: x, v, the force sum, the inverse mass, 2 P tangents and P tangent force
+sums (10 + 9 P f64); per spring: ends, rest length and group; the recorded frames are numpy arrays (3 (1 + P) reals
 per particle and frame). Semi-implicit Euler only; one body on the plane, the tilted plane or no
 terrain, without ``contact.impact_at_crossing`` (``gradients.Problem`` refuses the rest).
 """
