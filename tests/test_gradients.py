@@ -139,3 +139,62 @@ def test_fit_command_refuses_bad_input(cli, tmp_path):
         assert p.returncode == 2, (extra, p.stderr)
         lines = p.stderr.strip().splitlines()
         assert len(lines) == 1 and words in lines[0], (extra, p.stderr)
+
+
+def test_fit_recovers_stiffness_and_damping_from_eight_marker_tracks():
+    sim = make(terrain=False)
+    steps = frame_steps(1000, 30, DT)
+    problem = tangent.TangentProblem(sim)
+    truth = problem.values()
+    full = problem.trajectory(truth, steps)
+    corners = sorted(np.argsort(np.linalg.norm(full[0] - full[0].mean(axis=0), axis=1))[-8:].tolist())
+    names = ["k_stretch", "kd_stretch"]
+    start = dict(truth, k_stretch=2 * truth["k_stretch"], kd_stretch=0.5 * truth["kd_stretch"])
+    out = gradients.fit(problem, full[:, corners], steps, names, start=start, max_iters=40, particles=corners)
+    for p in names:
+        assert abs(out["values"][p] / truth[p] - 1) <= 0.01, (p, out["values"][p], truth[p])
+
+
+def test_marker_csv_is_read_in_any_row_order(tmp_path):
+    from taichi_soft.commands.fit import read_markers
+
+    path = tmp_path / "m.csv"
+    path.write_text("time,particle,x,y,z\n0.1,7,1,2,3\n0,7,4,5,6\n\n0,2,7,8,9\n0.1,2,0,1,2\n")
+    t, particles, target = read_markers(str(path))
+    assert t.tolist() == [0.0, 0.1] and particles == [2, 7]
+    assert target.tolist() == [[[7, 8, 9], [4, 5, 6]], [[0, 1, 2], [1, 2, 3]]]
+
+
+def test_fit_command_fits_marker_tracks(cli, tmp_path):
+    target = tmp_path / "t.npz"
+    assert cli("run", *FREE, "--states", str(target)).returncode == 0
+    data = np.load(target)
+    corners = [0, 2, 6, 8, 18, 20, 24, 26]  # some particles, as a marker set would be
+    lines = ["time,particle,x,y,z"] + [",".join([repr(float(t)), str(i)] + [repr(float(c)) for c in x[i]])
+                                       for t, x in zip(data["t"], data["x"]) for i in corners]
+    csv = tmp_path / "markers.csv"
+    csv.write_text("\n".join(lines) + "\n")
+    result = tmp_path / "r.json"
+    p = cli("fit", *FREE, "--set", "body.0.stretch.k=4000", "--target", str(csv), "--params", "k_stretch",
+            "--result", str(result), "--plot", str(tmp_path / "p.png"))
+    assert p.returncode == 0, p.stderr
+    import json
+
+    out = json.loads(result.read_text())
+    assert abs(out["values"]["k_stretch"] / 2000.0 - 1) <= 0.01 and out["markers"] == corners
+
+
+def test_fit_command_refuses_bad_marker_csv(cli, tmp_path):
+    cases = [("time,particle,x,y,z\n0,1,2,3\n", "columns"),
+             ("0,one,0,0,0\n", "not numbers"),
+             ("0,0,0,0,0\n0,1,0,0,0\n0.001,0,0,0,0\n", "same particles"),
+             ("0,0,0,0,0\n0,0,1,0,0\n", "second time"),
+             ("time,particle,x,y,z\n", "no marker rows"),
+             ("0,99,0,0,0\n", "particle 99")]
+    for k, (text, words) in enumerate(cases):
+        path = tmp_path / f"bad{k}.csv"
+        path.write_text(text)
+        p = cli("fit", *FREE, "--target", str(path), "--params", "k_stretch")
+        assert p.returncode == 2, (text, p.stderr)
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and words in lines[0], (text, p.stderr)

@@ -171,9 +171,10 @@ POSITIVE_FLOOR = 1e-9  # a stiffness, damping, mass or gravity is kept at least 
 
 
 def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: list[str], start: dict | None = None,
-        max_iters: int = 30, tol: float = 1e-12, progress=None) -> dict:
+        max_iters: int = 30, tol: float = 1e-12, progress=None, particles=None) -> dict:
     """Levenberg-Marquardt with bounds on ``params`` so that the positions at ``frame_steps``
-    match ``target`` [frames, particles, 3]. Loss: mean over frames and particles of the squared
+    match ``target`` [frames, particles, 3] (with ``particles``, a list of particle indices, the
+    target holds those particles only: marker tracks). Loss: mean over frames and particles of the squared
     distance [m^2]. Each iteration takes one Jacobian (``problem.jacobian``: one pass per parameter
     here, one pass for all of them with ``tangent.TangentProblem``) and one or more trial runs. Returns values, Gauss-Newton standard errors, loss history, counts.
     ``progress(iteration, loss, values)`` is called after each iteration."""
@@ -181,11 +182,12 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
     scale = {p: abs(values[p]) if values[p] != 0 else 1.0 for p in params}
     count = target[..., 0].size
     runs, grads = 0, 0
+    sel = slice(None) if particles is None else np.asarray(particles, dtype=np.int64)
 
     def residual(vals):
         nonlocal runs
         runs += 1
-        return ((problem.trajectory(vals, frame_steps) - target) / np.sqrt(count)).ravel()
+        return ((problem.trajectory(vals, frame_steps)[:, sel] - target) / np.sqrt(count)).ravel()
 
     def clip(name, value):
         lo, hi = BOUNDS.get(name, (POSITIVE_FLOOR * scale[name], np.inf))
@@ -199,8 +201,8 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
     for it in range(max_iters):
         x_and = problem.jacobian(values, params, frame_steps)
         grads += 1
-        jac = np.stack([x_and[1][p].ravel() / np.sqrt(count) * scale[p] for p in params], axis=1)
-        r = ((x_and[0] - target) / np.sqrt(count)).ravel()
+        jac = np.stack([x_and[1][p][:, sel].ravel() / np.sqrt(count) * scale[p] for p in params], axis=1)
+        r = ((x_and[0][:, sel] - target) / np.sqrt(count)).ravel()
         jtj, jtr = jac.T @ jac, jac.T @ r
         improved = False
         for _ in range(12):
@@ -225,8 +227,8 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
     # Gauss-Newton uncertainty at the result: sigma^2 (J^T J)^-1, sigma^2 from the residual
     x_and = problem.jacobian(values, params, frame_steps)
     grads += 1
-    jac = np.stack([x_and[1][p].ravel() / np.sqrt(count) for p in params], axis=1)
-    r = ((x_and[0] - target) / np.sqrt(count)).ravel()
+    jac = np.stack([x_and[1][p][:, sel].ravel() / np.sqrt(count) for p in params], axis=1)
+    r = ((x_and[0][:, sel] - target) / np.sqrt(count)).ravel()
     dof = max(r.size - len(params), 1)
     sigma2 = float(r @ r) * count / dof
     try:
