@@ -171,10 +171,12 @@ POSITIVE_FLOOR = 1e-9  # a stiffness, damping, mass or gravity is kept at least 
 
 
 def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: list[str], start: dict | None = None,
-        max_iters: int = 30, tol: float = 1e-12, progress=None, particles=None) -> dict:
+        max_iters: int = 30, tol: float = 1e-12, progress=None, particles=None, step_tol: float = 1e-7) -> dict:
     """Levenberg-Marquardt with bounds on ``params`` so that the positions at ``frame_steps``
     match ``target`` [frames, particles, 3] (with ``particles``, a list of particle indices, the
-    target holds those particles only: marker tracks). Loss: mean over frames and particles of the squared
+    target holds those particles only: marker tracks). It stops when the loss falls by less than
+    ``tol`` of itself in an iteration, or no parameter moves by more than ``step_tol`` of its start
+    (a kink of a contact's loss can hold it there for many tiny steps). Loss: mean over frames and particles of the squared
     distance [m^2]. Each iteration takes one Jacobian (``problem.jacobian``: one pass per parameter
     here, one pass for all of them with ``tangent.TangentProblem``) and one or more trial runs. Returns values, Gauss-Newton standard errors, loss history, counts.
     ``progress(iteration, loss, values)`` is called after each iteration."""
@@ -205,6 +207,7 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
         r = ((x_and[0][:, sel] - target) / np.sqrt(count)).ravel()
         jtj, jtr = jac.T @ jac, jac.T @ r
         improved = False
+        moved = 0.0
         for _ in range(12):
             step = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-30), -jtr)
             trial = dict(values)
@@ -213,6 +216,7 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
             rt = residual(trial)
             lt = float(rt @ rt)
             if lt < loss:
+                moved = max(abs(trial[p] - values[p]) / scale[p] for p in params)
                 values, improved = trial, True
                 lam = max(lam / 3, 1e-9)
                 break
@@ -220,7 +224,8 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
         history.append(min(loss, lt) if improved else loss)
         if progress is not None:
             progress(it + 1, history[-1], values)
-        if not improved or loss - history[-1] <= tol * max(loss, 1e-300) or history[-1] == 0.0:
+        if (not improved or loss - history[-1] <= tol * max(loss, 1e-300) or history[-1] == 0.0
+                or moved <= step_tol):
             loss = history[-1]
             break
         loss = history[-1]
