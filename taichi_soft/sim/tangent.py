@@ -309,8 +309,9 @@ class TangentProblem(Problem):
                 "friction": float(mu)}
 
     def passes(self, values: dict, frame_steps: list[int], params: list[str] | tuple = ()):
-        """Positions [frames, particles, 3] at ``frame_steps`` and, for ``params``, their
-        derivatives [frames, particles, P, 3] (one pass; None without parameters)."""
+        """Positions [m], [frames, particles, 3], at ``frame_steps`` (step counts) and, for ``params``,
+        their derivatives [m per unit of each parameter], [frames, particles, P, 3] (one pass; None
+        without parameters)."""
         params = tuple(params)
         for p in params:
             if p not in PARAMS:
