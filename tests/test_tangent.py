@@ -75,3 +75,10 @@ def test_one_pass_gives_each_parameter_its_own_column():
     _, both = problem.jacobian(values, ["k_shear", "mass"], steps)
     for p in ("k_shear", "mass"):
         assert np.array_equal(both[p], problem.trajectory(values, steps, seed=p))
+
+
+def test_a_wrong_derivative_fails_the_check(monkeypatch):
+    """The damper's term of the spring's derivative with its sign flipped."""
+    monkeypatch.setattr(tangent._Stepper, "damper_derivative_sign", -1.0)
+    err = largest_relative_difference(make(terrain="none"), frame_steps(100, 30, DT), ["kd_stretch"])
+    assert err["kd_stretch"] > 1e-3, err

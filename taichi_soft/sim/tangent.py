@@ -50,6 +50,10 @@ class _Stepper:
     """The Taichi fields and the run kernel for one problem and one list of parameters (the seeds
     are compiled in; their values are fields)."""
 
+    # Sign of the damper's term in the spring's derivative: -1 makes a wrong derivative on purpose,
+    # so that the tests show their check catches one (read at compile time).
+    damper_derivative_sign = 1.0
+
     def __init__(self, problem: Problem, params: tuple[str, ...]):
         self.params = params
         self.seeds = [_seed(p) for p in params]
@@ -153,7 +157,7 @@ class _Stepper:
                 dw = self.dv[a, p] - self.dv[b, p]
                 dlen = d.dot(dd) * inv_len
                 dl = (dd - l * dlen) * inv
-                dc = k * dlen + kd * (dw.dot(l) + w.dot(dl))
+                dc = k * dlen + ti.static(self.damper_derivative_sign) * kd * (dw.dot(l) + w.dot(dl))
                 kind, group = ti.static(self.seeds[p] if p < len(self.seeds) else (-1, -1))
                 if ti.static(kind == K):
                     if g == group:
