@@ -33,7 +33,7 @@ def fd_check(problem, steps, names, rel=1e-6):
     out = {}
     for p in names:
         d = problem.trajectory(vals, steps, seed=p)
-        h = rel * abs(vals[p])
+        h = rel * (abs(vals[p]) or 1.0)  # a velocity or spin starting at 0: steps of rel m/s, rad/s
         up, dn = dict(vals), dict(vals)
         up[p] += h
         dn[p] -= h
@@ -54,7 +54,8 @@ def test_stepper_equals_engine_on_a_drop():
 def test_derivatives_match_finite_differences_contact_free():
     sim = make(terrain=False)
     err = fd_check(gradients.Problem(sim), frame_steps(300, 30, DT),
-                   ["k_stretch", "k_shear", "k_bend", "kd_stretch", "kd_shear", "gravity", "mass"])
+                   ["k_stretch", "k_shear", "k_bend", "kd_stretch", "kd_shear", "gravity", "mass", "velocity_x",
+                    "spin_z"])
     assert max(err.values()) <= 1e-5, err
 
 
@@ -96,6 +97,17 @@ def test_fit_recovers_stiffness_and_damping_from_free_vibration():
     out = gradients.fit(problem, target, steps, names, start=start, max_iters=40)
     for p in names:
         assert abs(out["values"][p] / truth[p] - 1) <= 0.01, (p, out["values"][p], truth[p])
+
+
+def test_fit_recovers_initial_velocity_and_spin():
+    sim = make(terrain=False)
+    # the scene starts at rest; the truth moves and spins, the fit starts from rest
+    problem = tangent.TangentProblem(sim)
+    truth = dict(problem.values(), velocity_x=0.5, spin_y=1.5)
+    steps = frame_steps(300, 30, DT)
+    target = problem.trajectory(truth, steps)
+    out = gradients.fit(problem, target, steps, ["velocity_x", "spin_y"], start=problem.values(), max_iters=20)
+    assert abs(out["values"]["velocity_x"] - 0.5) <= 1e-6 and abs(out["values"]["spin_y"] - 1.5) <= 1e-6, out["values"]
 
 
 def test_fit_recovers_restitution_from_a_drop():

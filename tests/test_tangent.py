@@ -7,7 +7,7 @@ from taichi_soft.sim import Simulation, gradients, scene_from_dict, tangent
 from taichi_soft.sim.simulation import frame_steps
 
 DT = 1e-3
-CONTACT_FREE = ["k_stretch", "k_shear", "k_bend", "kd_stretch", "kd_shear", "kd_bend", "gravity", "mass"]
+CONTACT_FREE = [p for p in gradients.PARAMS if p not in ("restitution", "friction")]
 
 
 def make(terrain="plane", center_y=0.8, velocity=(0.0, 0.0, 0.0), impact_friction=False):

@@ -16,7 +16,8 @@ from .common import EXIT_OK, add_scene_args, check_output_path, load_scene_from_
 
 def add_parser(sub):
     """The ``fit`` command's arguments on the subparsers ``sub``."""
-    p = sub.add_parser("fit", help="fit material and contact parameters to a recorded motion (--states file)")
+    p = sub.add_parser("fit", help="fit material, contact and start parameters to a recorded motion (--states file "
+                                   "or marker tracks)")
     add_scene_args(p, integrator=False)
     p.add_argument("--target", required=True,
                    help="the motion to match: a .npz written by `run --states`, or a .csv of marker tracks with "
@@ -24,7 +25,8 @@ def add_parser(sub):
                         "the same particles)")
     p.add_argument("--params", required=True,
                    help="comma-separated parameters to fit: k_stretch, k_shear, k_bend [N/m], kd_stretch, kd_shear, "
-                        "kd_bend [N s/m], restitution, friction, gravity [m/s^2], mass [kg]")
+                        "kd_bend [N s/m], restitution, friction, gravity [m/s^2], mass [kg], velocity_x, velocity_y, "
+                        "velocity_z (initial [m/s]), spin_x, spin_y, spin_z (initial angular velocity [rad/s])")
     p.add_argument("--window", help="T0:T1, the target's frames from T0 to T1 [s] (default: all)")
     p.add_argument("--max-iters", type=int, default=30, help="Levenberg-Marquardt iterations at most (default: 30)")
     p.add_argument("--result", help="write the JSON result here (default: stdout)")

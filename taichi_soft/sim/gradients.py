@@ -14,7 +14,9 @@ engine's ``semi_implicit_euler`` and its derivatives against central finite diff
 
 Parameters (``PARAMS``): ``k_stretch``, ``k_shear``, ``k_bend`` [N/m], ``kd_stretch``,
 ``kd_shear``, ``kd_bend`` [N s/m] (of body 0), ``restitution`` [-], ``friction`` [-],
-``gravity`` (its magnitude [m/s^2], direction kept), ``mass`` (every free particle's [kg]).
+``gravity`` (its magnitude [m/s^2], direction kept), ``mass`` (every free particle's [kg]),
+``velocity_x``, ``velocity_y``, ``velocity_z`` (the body's initial velocity [m/s]) and ``spin_x``,
+``spin_y``, ``spin_z`` (its initial angular velocity [rad/s] about its centre).
 """
 from __future__ import annotations
 
@@ -23,8 +25,11 @@ import numpy as np
 from .lattice import SPRING_KINDS
 from .spring_codes import spring_group
 
+AXES = ("x", "y", "z")
+VELOCITY = tuple(f"velocity_{a}" for a in AXES)
+SPIN = tuple(f"spin_{a}" for a in AXES)
 PARAMS = tuple([f"k_{k}" for k in SPRING_KINDS] + [f"kd_{k}" for k in SPRING_KINDS]
-               + ["restitution", "friction", "gravity", "mass"])
+               + ["restitution", "friction", "gravity", "mass", *VELOCITY, *SPIN])
 H = 1e-30  # the imaginary step: far below any parameter's rounding, so Re is the plain run
 TINY = 1e-30  # forces.TINY: added to a spring's length before dividing by it
 
@@ -47,6 +52,12 @@ class Problem:
         self.group_kd = m.group_kd.to_numpy()[: m.n_groups].astype(np.float64)
         self.mass = m.mass_np.copy()
         self.x0, self.v0 = m.x0_np.copy(), m.v0_np.copy()
+        # v0 = velocity + spin x (x0 - centre) (builder.py): kept as those two and what is left over
+        spec = m.bodies[0].spec
+        self.velocity = np.asarray(spec.velocity, dtype=np.float64)
+        self.spin = np.asarray(spec.angular_velocity, dtype=np.float64)
+        self.arm = self.x0 - np.asarray(spec.center, dtype=np.float64)
+        self.v0_rest = self.v0 - (self.velocity + np.cross(self.spin, self.arm))
         self.gravity = np.asarray(m.gravity[None].to_numpy(), dtype=np.float64)
         self.contact = t.has_contact
         if self.contact:
@@ -74,6 +85,8 @@ class Problem:
         free = self.mass[self.mass > 0]
         out.update(restitution=self.restitution, friction=self.friction,
                    gravity=float(np.linalg.norm(self.gravity)), mass=float(free[0]) if len(free) else 0.0)
+        out.update({name: float(c) for name, c in zip(VELOCITY, self.velocity)})
+        out.update({name: float(c) for name, c in zip(SPIN, self.spin)})
         return out
 
     def _coefficients(self, values: dict, seed: str | None):
@@ -91,14 +104,18 @@ class Problem:
         free = self.mass > 0
         inv_mass = np.zeros(len(self.mass), dtype=dtype)
         inv_mass[free] = 1.0 / bump("mass")
-        return gk[self.group], gkd[self.group], gravity, inv_mass, free, bump("restitution"), bump("friction")
+        velocity = np.array([bump(name) for name in VELOCITY])
+        spin = np.array([bump(name) for name in SPIN])
+        v0 = self.v0_rest + velocity + np.cross(spin, self.arm)
+        return (gk[self.group], gkd[self.group], gravity, inv_mass, free, bump("restitution"), bump("friction"),
+                v0)
 
     def trajectory(self, values: dict, frame_steps: list[int], seed: str | None = None) -> np.ndarray:
         """Positions [m] at the given step counts, [frames, particles, 3]; with ``seed`` their
         derivative with respect to that parameter instead (same shape, [m per unit])."""
-        k, kd, gravity, inv_mass, free, kr, mu = self._coefficients(values, seed)
+        k, kd, gravity, inv_mass, free, kr, mu, v0 = self._coefficients(values, seed)
         dtype = complex if seed else float
-        x, v = self.x0.astype(dtype), self.v0.astype(dtype)
+        x, v = self.x0.astype(dtype), v0.astype(dtype)
         a_end, b_end = self.pairs[:, 0], self.pairs[:, 1]
         dt = self.dt
         out = []
@@ -166,7 +183,8 @@ class Problem:
         return x, {p: self.trajectory(values, frame_steps, seed=p) for p in params}
 
 
-BOUNDS = {"restitution": (0.0, 1.0), "friction": (0.0, np.inf)}  # the others: > 0
+BOUNDS = {"restitution": (0.0, 1.0), "friction": (0.0, np.inf),
+          **{name: (-np.inf, np.inf) for name in VELOCITY + SPIN}}  # the others: > 0
 POSITIVE_FLOOR = 1e-9  # a stiffness, damping, mass or gravity is kept at least this fraction of its start
 
 

@@ -24,19 +24,21 @@ terrain, without ``contact.impact_at_crossing`` (``gradients.Problem`` refuses t
 import numpy as np
 import taichi as ti
 
-from .gradients import PARAMS, TINY, Problem
+from .gradients import PARAMS, SPIN, TINY, VELOCITY, Problem
 from .lattice import SPRING_KINDS
 from .spring_codes import spring_group
 
 F64 = ti.f64
 VEC = ti.types.vector(3, F64)
 # What a parameter changes, for the kernel's compile-time seeds: a group's stiffness or damping,
-# or one of the scalars.
-K, KD, RESTITUTION, FRICTION, GRAVITY, MASS = range(6)
+# one of the scalars, or the initial velocity or spin (these only start the tangent: dv(0) != 0).
+K, KD, RESTITUTION, FRICTION, GRAVITY, MASS, START = range(7)
 
 
 def _seed(name: str) -> tuple[int, int]:
     """(what the parameter changes, its spring group or -1) for a name of ``PARAMS``."""
+    if name in VELOCITY + SPIN:
+        return START, -1
     for kind_i, kind in enumerate(SPRING_KINDS):
         if name == f"k_{kind}":
             return K, spring_group(0, kind_i)
@@ -93,11 +95,22 @@ class _Stepper:
                                    problem.threshold, float(problem.impact_friction))):
             self.scalars[j] = value
         self.x.from_numpy(problem.x0)
-        self.v.from_numpy(problem.v0)
+        self.v.from_numpy(coefficients["v0"])
         self.dx.fill(0.0)
-        self.dv.fill(0.0)
+        self.dv.from_numpy(self._start_tangents(problem))
         self.f.fill(0.0)
         self.df.fill(0.0)
+
+    def _start_tangents(self, problem: Problem) -> np.ndarray:
+        """dv/dp at the start [n, P, 3]: a unit vector for a velocity component, e x (x0 - centre)
+        for a spin component, zero for the rest."""
+        out = np.zeros((self.n, self.P, 3))
+        for j, name in enumerate(self.params):
+            if name in VELOCITY:
+                out[:, j, VELOCITY.index(name)] = 1.0
+            elif name in SPIN:
+                out[:, j] = np.cross(np.eye(3)[SPIN.index(name)], problem.arm)
+        return out
 
     # -- the kernel ------------------------------------------------------------------------------
     @ti.kernel
@@ -299,7 +312,7 @@ class TangentProblem(Problem):
 
     def _coefficients_for(self, values: dict) -> dict:
         """The run's parameter arrays (real) from ``values``, as ``gradients.Problem`` makes them."""
-        gk, gkd, gravity, inv_mass, free, kr, mu = self._coefficients(values, None)
+        gk, gkd, gravity, inv_mass, free, kr, mu, v0 = self._coefficients(values, None)
         gk_g = self.group_k.copy()
         gkd_g = self.group_kd.copy()
         for kind_i, kind in enumerate(SPRING_KINDS):
@@ -310,7 +323,7 @@ class TangentProblem(Problem):
         return {"group_k": gk_g, "group_kd": gkd_g, "inv_mass": np.asarray(inv_mass, dtype=np.float64),
                 "gravity": np.asarray(gravity, dtype=np.float64),
                 "gravity_dir": self.gravity / g0 if g0 > 0 else np.zeros(3), "restitution": float(kr),
-                "friction": float(mu)}
+                "friction": float(mu), "v0": np.asarray(v0, dtype=np.float64)}
 
     def passes(self, values: dict, frame_steps: list[int], params: list[str] | tuple = ()):
         """Positions [m], [frames, particles, 3], at ``frame_steps`` (step counts) and, for ``params``,
