@@ -110,6 +110,19 @@ def test_fit_recovers_initial_velocity_and_spin():
     assert abs(out["values"]["velocity_x"] - 0.5) <= 1e-6 and abs(out["values"]["spin_y"] - 1.5) <= 1e-6, out["values"]
 
 
+def test_fit_recovers_friction_from_a_slide():
+    # Thrown down the 45-degree plane (tests/test_tangent.py's scene): it lands and slides.
+    from test_tangent import make as make_thrown
+
+    sim = make_thrown(terrain="tilted_plane", center_y=1.2, velocity=(1.0, -1.0, 0.0))
+    steps = frame_steps(600, 30, DT)
+    problem = tangent.TangentProblem(sim)
+    truth = problem.values()
+    target = problem.trajectory(truth, steps)
+    out = gradients.fit(problem, target, steps, ["friction"], start=dict(truth, friction=2 * truth["friction"]))
+    assert abs(out["values"]["friction"] / truth["friction"] - 1) <= 0.05, out["values"]
+
+
 def test_fit_recovers_restitution_from_a_drop():
     sim = make(center_y=0.9, restitution=0.6)
     steps = frame_steps(400, 30, DT)  # the drop and the first bounce (docs/gradients.md: later, slower impacts make the loss piecewise)
