@@ -26,6 +26,7 @@ import taichi as ti
 
 from .gradients import PARAMS, SPIN, TINY, VELOCITY, Problem
 from .lattice import SPRING_KINDS
+from .scalar_fields import assign
 from .spring_codes import spring_group
 
 F64 = ti.f64
@@ -86,14 +87,11 @@ class _Stepper:
         self.group_k.from_numpy(coefficients["group_k"])
         self.group_kd.from_numpy(coefficients["group_kd"])
         self.inv_mass.from_numpy(coefficients["inv_mass"])
-        self.gravity[None] = coefficients["gravity"]
-        self.gravity_dir[None] = coefficients["gravity_dir"]
-        if self.contact:
-            self.point[None] = problem.point
-            self.normal[None] = problem.normal
-        for j, value in enumerate((coefficients["restitution"], coefficients["friction"], problem.epsilon,
-                                   problem.threshold, float(problem.impact_friction))):
-            self.scalars[j] = value
+        assign({self.gravity: coefficients["gravity"], self.gravity_dir: coefficients["gravity_dir"],
+                self.point: problem.point if self.contact else np.zeros(3),
+                self.normal: problem.normal if self.contact else np.array([0.0, 1.0, 0.0])})
+        self.scalars.from_numpy(np.array([coefficients["restitution"], coefficients["friction"], problem.epsilon,
+                                          problem.threshold, float(problem.impact_friction)]))
         self.x.from_numpy(problem.x0)
         self.v.from_numpy(coefficients["v0"])
         self.dx.fill(0.0)
