@@ -133,6 +133,10 @@ def cmd_fit(args) -> int:
     if np.abs(steps * dt - t[keep]).max() > 1e-6 * dt + 1e-12 or len(set(steps)) != len(steps):
         raise UserError(f"--target: its frame times are not distinct whole steps of the scene's dt {dt:g} s")
     common.start_taichi(args)
+    import taichi as ti
+
+    if ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64, ti.cuda):
+        raise UserError(f"fit needs f64 kernels: --arch cpu or cuda, not {args.arch}")
     from ..sim.simulation import Simulation
 
     sim = Simulation(scene)
