@@ -1,4 +1,5 @@
-"""Forward-mode derivatives of semi-implicit Euler runs (sim/gradients.py) and the fit built on them.
+"""Forward-mode derivatives of semi-implicit Euler runs (sim/gradients.py) and the fit built on them
+(stepped by sim/tangent.py, as `fit` does).
 
 The stepper's answers are the engine's (to 1e-12 m), its derivatives match central finite
 differences (relative 1e-5), a wrong derivative fails that check, and a fit returns the truth
@@ -6,7 +7,7 @@ from a synthetic target started 2x off."""
 import numpy as np
 
 from taichi_soft.sim import Simulation, scene_from_dict
-from taichi_soft.sim import gradients
+from taichi_soft.sim import gradients, tangent
 from taichi_soft.sim.simulation import frame_steps
 
 DT = 1e-3
@@ -32,7 +33,7 @@ def fd_check(problem, steps, names, rel=1e-6):
     out = {}
     for p in names:
         d = problem.trajectory(vals, steps, seed=p)
-        h = rel * abs(vals[p])
+        h = rel * (abs(vals[p]) or 1.0)  # a velocity or spin starting at 0: steps of rel m/s, rad/s
         up, dn = dict(vals), dict(vals)
         up[p] += h
         dn[p] -= h
@@ -53,7 +54,8 @@ def test_stepper_equals_engine_on_a_drop():
 def test_derivatives_match_finite_differences_contact_free():
     sim = make(terrain=False)
     err = fd_check(gradients.Problem(sim), frame_steps(300, 30, DT),
-                   ["k_stretch", "k_shear", "k_bend", "kd_stretch", "kd_shear", "gravity", "mass"])
+                   ["k_stretch", "k_shear", "k_bend", "kd_stretch", "kd_shear", "gravity", "mass", "velocity_x",
+                    "spin_z"])
     assert max(err.values()) <= 1e-5, err
 
 
@@ -87,7 +89,7 @@ def test_a_wrong_derivative_fails_the_check(monkeypatch):
 def test_fit_recovers_stiffness_and_damping_from_free_vibration():
     sim = make(terrain=False)
     steps = frame_steps(1000, 30, DT)
-    problem = gradients.Problem(sim)
+    problem = tangent.TangentProblem(sim)  # what `fit` steps
     truth = problem.values()
     target = problem.trajectory(truth, steps)
     names = ["k_stretch", "kd_stretch"]
@@ -97,10 +99,34 @@ def test_fit_recovers_stiffness_and_damping_from_free_vibration():
         assert abs(out["values"][p] / truth[p] - 1) <= 0.01, (p, out["values"][p], truth[p])
 
 
+def test_fit_recovers_initial_velocity_and_spin():
+    sim = make(terrain=False)
+    # the scene starts at rest; the truth moves and spins, the fit starts from rest
+    problem = tangent.TangentProblem(sim)
+    truth = dict(problem.values(), velocity_x=0.5, spin_y=1.5)
+    steps = frame_steps(300, 30, DT)
+    target = problem.trajectory(truth, steps)
+    out = gradients.fit(problem, target, steps, ["velocity_x", "spin_y"], start=problem.values(), max_iters=20)
+    assert abs(out["values"]["velocity_x"] - 0.5) <= 1e-6 and abs(out["values"]["spin_y"] - 1.5) <= 1e-6, out["values"]
+
+
+def test_fit_recovers_friction_from_a_slide():
+    # Thrown down the 45-degree plane (tests/test_tangent.py's scene): it lands and slides.
+    from test_tangent import make as make_thrown
+
+    sim = make_thrown(terrain="tilted_plane", center_y=1.2, velocity=(1.0, -1.0, 0.0))
+    steps = frame_steps(600, 30, DT)
+    problem = tangent.TangentProblem(sim)
+    truth = problem.values()
+    target = problem.trajectory(truth, steps)
+    out = gradients.fit(problem, target, steps, ["friction"], start=dict(truth, friction=2 * truth["friction"]))
+    assert abs(out["values"]["friction"] / truth["friction"] - 1) <= 0.05, out["values"]
+
+
 def test_fit_recovers_restitution_from_a_drop():
     sim = make(center_y=0.9, restitution=0.6)
     steps = frame_steps(400, 30, DT)  # the drop and the first bounce (docs/gradients.md: later, slower impacts make the loss piecewise)
-    problem = gradients.Problem(sim)
+    problem = tangent.TangentProblem(sim)  # what `fit` steps
     truth = problem.values()
     target = problem.trajectory(truth, steps)
     out = gradients.fit(problem, target, steps, ["restitution"], start=dict(truth, restitution=0.3), max_iters=40)
@@ -138,3 +164,62 @@ def test_fit_command_refuses_bad_input(cli, tmp_path):
         assert p.returncode == 2, (extra, p.stderr)
         lines = p.stderr.strip().splitlines()
         assert len(lines) == 1 and words in lines[0], (extra, p.stderr)
+
+
+def test_fit_recovers_stiffness_and_damping_from_eight_marker_tracks():
+    sim = make(terrain=False)
+    steps = frame_steps(1000, 30, DT)
+    problem = tangent.TangentProblem(sim)
+    truth = problem.values()
+    full = problem.trajectory(truth, steps)
+    corners = sorted(np.argsort(np.linalg.norm(full[0] - full[0].mean(axis=0), axis=1))[-8:].tolist())
+    names = ["k_stretch", "kd_stretch"]
+    start = dict(truth, k_stretch=2 * truth["k_stretch"], kd_stretch=0.5 * truth["kd_stretch"])
+    out = gradients.fit(problem, full[:, corners], steps, names, start=start, max_iters=40, particles=corners)
+    for p in names:
+        assert abs(out["values"][p] / truth[p] - 1) <= 0.01, (p, out["values"][p], truth[p])
+
+
+def test_marker_csv_is_read_in_any_row_order(tmp_path):
+    from taichi_soft.commands.fit import read_markers
+
+    path = tmp_path / "m.csv"
+    path.write_text("time,particle,x,y,z\n0.1,7,1,2,3\n0,7,4,5,6\n\n0,2,7,8,9\n0.1,2,0,1,2\n")
+    t, particles, target = read_markers(str(path))
+    assert t.tolist() == [0.0, 0.1] and particles == [2, 7]
+    assert target.tolist() == [[[7, 8, 9], [4, 5, 6]], [[0, 1, 2], [1, 2, 3]]]
+
+
+def test_fit_command_fits_marker_tracks(cli, tmp_path):
+    target = tmp_path / "t.npz"
+    assert cli("run", *FREE, "--states", str(target)).returncode == 0
+    data = np.load(target)
+    corners = [0, 2, 6, 8, 18, 20, 24, 26]  # some particles, as a marker set would be
+    lines = ["time,particle,x,y,z"] + [",".join([repr(float(t)), str(i)] + [repr(float(c)) for c in x[i]])
+                                       for t, x in zip(data["t"], data["x"]) for i in corners]
+    csv = tmp_path / "markers.csv"
+    csv.write_text("\n".join(lines) + "\n")
+    result = tmp_path / "r.json"
+    p = cli("fit", *FREE, "--set", "body.0.stretch.k=4000", "--target", str(csv), "--params", "k_stretch",
+            "--result", str(result), "--plot", str(tmp_path / "p.png"))
+    assert p.returncode == 0, p.stderr
+    import json
+
+    out = json.loads(result.read_text())
+    assert abs(out["values"]["k_stretch"] / 2000.0 - 1) <= 0.01 and out["markers"] == corners
+
+
+def test_fit_command_refuses_bad_marker_csv(cli, tmp_path):
+    cases = [("time,particle,x,y,z\n0,1,2,3\n", "columns"),
+             ("0,one,0,0,0\n", "not numbers"),
+             ("0,0,0,0,0\n0,1,0,0,0\n0.001,0,0,0,0\n", "same particles"),
+             ("0,0,0,0,0\n0,0,1,0,0\n", "second time"),
+             ("time,particle,x,y,z\n", "no marker rows"),
+             ("0,99,0,0,0\n", "particle 99")]
+    for k, (text, words) in enumerate(cases):
+        path = tmp_path / f"bad{k}.csv"
+        path.write_text(text)
+        p = cli("fit", *FREE, "--target", str(path), "--params", "k_stretch")
+        assert p.returncode == 2, (text, p.stderr)
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and words in lines[0], (text, p.stderr)

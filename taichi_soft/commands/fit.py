@@ -1,6 +1,6 @@
 """``fit``: find spring stiffness, damping, restitution, friction, gravity or mass that reproduce a
-recorded motion (a ``run --states`` file), by Levenberg-Marquardt on forward-mode derivatives
-(``sim/gradients.py``)."""
+recorded motion (a ``run --states`` file or a CSV of marker tracks), by Levenberg-Marquardt on forward-mode derivatives
+(``sim/tangent.py``: one tangent-linear pass gives the run and its derivatives for every parameter)."""
 from __future__ import annotations
 
 import json
@@ -16,12 +16,17 @@ from .common import EXIT_OK, add_scene_args, check_output_path, load_scene_from_
 
 def add_parser(sub):
     """The ``fit`` command's arguments on the subparsers ``sub``."""
-    p = sub.add_parser("fit", help="fit material and contact parameters to a recorded motion (--states file)")
+    p = sub.add_parser("fit", help="fit material, contact and start parameters to a recorded motion (--states file "
+                                   "or marker tracks)")
     add_scene_args(p, integrator=False)
-    p.add_argument("--target", required=True, help="the motion to match: a .npz written by `run --states`")
+    p.add_argument("--target", required=True,
+                   help="the motion to match: a .npz written by `run --states`, or a .csv of marker tracks with "
+                        "columns time [s], particle index, x, y, z [m] (a header line is allowed; every time lists "
+                        "the same particles)")
     p.add_argument("--params", required=True,
                    help="comma-separated parameters to fit: k_stretch, k_shear, k_bend [N/m], kd_stretch, kd_shear, "
-                        "kd_bend [N s/m], restitution, friction, gravity [m/s^2], mass [kg]")
+                        "kd_bend [N s/m], restitution, friction, gravity [m/s^2], mass [kg], velocity_x, velocity_y, "
+                        "velocity_z (initial [m/s]), spin_x, spin_y, spin_z (initial angular velocity [rad/s])")
     p.add_argument("--window", help="T0:T1, the target's frames from T0 to T1 [s] (default: all)")
     p.add_argument("--max-iters", type=int, default=30, help="Levenberg-Marquardt iterations at most (default: 30)")
     p.add_argument("--result", help="write the JSON result here (default: stdout)")
@@ -39,10 +44,61 @@ def _window(text: str | None):
     return t0, t1
 
 
+def read_markers(path: str):
+    """Marker tracks from a CSV (columns time [s], particle index, x, y, z [m]; an optional header
+    line): (times [frames], particle indices [markers], positions [frames, markers, 3]). Every time
+    must list the same particles once each; ``UserError`` (one line) otherwise."""
+    import csv
+
+    import numpy as np
+
+    where = f"--target {path}"
+    try:
+        with open(path, newline="") as f:
+            rows = [(no, r) for no, r in enumerate(csv.reader(f), 1) if any(c.strip() for c in r)]
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise UserError(f"{where}: cannot read it ({e})") from None
+    if rows and not _is_number(rows[0][1][0]):
+        rows = rows[1:]  # the header
+    if not rows:
+        raise UserError(f"{where}: no marker rows (columns time, particle index, x, y, z)")
+    tracks = {}
+    for no, row in rows:
+        if len(row) != 5:
+            raise UserError(f"{where}: line {no} has {len(row)} columns, not 5 (time, particle index, x, y, z)")
+        try:
+            t, x, y, z = (float(row[k]) for k in (0, 2, 3, 4))
+            index = int(row[1])
+        except ValueError:
+            raise UserError(f"{where}: line {no}: not numbers (time, an integer particle index, x, y, z)") from None
+        if not all(np.isfinite((t, x, y, z))) or index < 0:
+            raise UserError(f"{where}: line {no}: a value is not finite or the particle index is negative")
+        frame = tracks.setdefault(t, {})
+        if index in frame:
+            raise UserError(f"{where}: line {no}: particle {index} at t = {t:g} s a second time")
+        frame[index] = (x, y, z)
+    times = sorted(tracks)
+    particles = sorted(tracks[times[0]])
+    for t in times:
+        if sorted(tracks[t]) != particles:
+            raise UserError(f"{where}: t = {t:g} s lists other particles than t = {times[0]:g} s; "
+                            "every time must list the same particles")
+    target = np.array([[tracks[t][i] for i in particles] for t in times], dtype=np.float64)
+    return np.array(times), particles, target
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def cmd_fit(args) -> int:
     import numpy as np
 
-    from ..sim import gradients
+    from ..sim import gradients, tangent
 
     names = common.parse_name_list(args.params, "--params", list(gradients.PARAMS), "parameter",
                                    "name each parameter once, comma-separated")
@@ -51,11 +107,15 @@ def cmd_fit(args) -> int:
     plot_path = check_output_path(args.plot, "--plot", [".png"])
     if args.max_iters < 1:
         raise UserError(f"--max-iters {args.max_iters}: at least 1")
-    try:
-        data = np.load(args.target)
-        t, target = np.asarray(data["t"], dtype=np.float64), np.asarray(data["x"], dtype=np.float64)
-    except (OSError, KeyError, ValueError) as e:
-        raise UserError(f"--target {args.target}: not a `run --states` file ({e})") from None
+    markers = None
+    if str(args.target).lower().endswith(".csv"):
+        t, markers, target = read_markers(args.target)
+    else:
+        try:
+            data = np.load(args.target)
+            t, target = np.asarray(data["t"], dtype=np.float64), np.asarray(data["x"], dtype=np.float64)
+        except (OSError, KeyError, ValueError) as e:
+            raise UserError(f"--target {args.target}: not a `run --states` file ({e})") from None
     scene = load_scene_from_args(args)
     if scene.sim["integrator"] != "semi_implicit_euler":
         raise UserError(f"fit covers semi_implicit_euler only; the scene's integrator is {scene.sim['integrator']!r} "
@@ -73,12 +133,19 @@ def cmd_fit(args) -> int:
     if np.abs(steps * dt - t[keep]).max() > 1e-6 * dt + 1e-12 or len(set(steps)) != len(steps):
         raise UserError(f"--target: its frame times are not distinct whole steps of the scene's dt {dt:g} s")
     common.start_taichi(args)
+    import taichi as ti
+
+    if ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64, ti.cuda):
+        raise UserError(f"fit needs f64 kernels: --arch cpu or cuda, not {args.arch}")
     from ..sim.simulation import Simulation
 
     sim = Simulation(scene)
-    if target.shape[1:] != (sim.model.n_particles, 3):
+    if markers is not None and markers[-1] >= sim.model.n_particles:
+        raise UserError(f"--target names particle {markers[-1]}; the scene has {sim.model.n_particles} "
+                        f"(0-{sim.model.n_particles - 1})")
+    if markers is None and target.shape[1:] != (sim.model.n_particles, 3):
         raise UserError(f"--target has {target.shape[1]} particles, the scene {sim.model.n_particles}")
-    problem = gradients.Problem(sim)
+    problem = tangent.TangentProblem(sim)
     start = problem.values()
     begin = time.perf_counter()
 
@@ -87,9 +154,10 @@ def cmd_fit(args) -> int:
         print(f"fit: iteration {it}/{args.max_iters}: loss {loss:.4g} m^2; {shown}", file=sys.stderr)
 
     out = gradients.fit(problem, target[keep], [int(s) for s in steps], names, max_iters=args.max_iters,
-                        progress=progress)
+                        progress=progress, particles=markers)
     out.update(start={p: start[p] for p in names}, wall_seconds=time.perf_counter() - begin,
-               frames=int(keep.sum()), particles=sim.model.n_particles, scene=scene.name)
+               frames=int(keep.sum()), particles=sim.model.n_particles, scene=scene.name,
+               markers=markers)
     text = json.dumps(finite_or_none(out), indent=2)
     written = []
     failures = []
@@ -99,6 +167,8 @@ def cmd_fit(args) -> int:
         print(text)
     if plot_path:
         fitted = problem.trajectory({**start, **out["values"]}, [int(s) for s in steps])
+        if markers is not None:
+            fitted = fitted[:, markers]
         failures += write_output("plot", plot_path, lambda tmp: _plot(tmp, out, t[keep], target[keep], fitted), written)
     common.print_outputs(written)
     for line in failures:

@@ -2,9 +2,10 @@
 
 Taichi's own forward mode (``ti.ad.FwdMode``) could not compile the engine's step kernels in
 Taichi 1.7.4 (docs/gradients.md: the serial many-step kernel fails in ``auto_diff.cpp`` with
-"Not supported", the parallel one with a ``MatrixPtrStmt`` assertion), so this module is the one
-separate stepper of the project: semi-implicit Euler with springs, dampers, gravity and the plane's
-contact model, written once in numpy over complex numbers. A parameter p is given an imaginary
+"Not supported", the parallel one with a ``MatrixPtrStmt`` assertion), so this module is the
+reference stepper: semi-implicit Euler with springs, dampers, gravity and the plane's contact
+model, written once in numpy over complex numbers (``tangent.py`` is the fast one that ``fit``
+uses; its tests check it against this one). A parameter p is given an imaginary
 part ``1j * H``; every operation is analytic in it (lengths are ``sqrt(d . d)``, branches and
 min/max look at real parts), so Im(y) / H is dy/dp to rounding (complex-step differentiation:
 no subtraction, hence no cancellation, the same as one forward-mode dual pass). One pass per
@@ -13,7 +14,9 @@ engine's ``semi_implicit_euler`` and its derivatives against central finite diff
 
 Parameters (``PARAMS``): ``k_stretch``, ``k_shear``, ``k_bend`` [N/m], ``kd_stretch``,
 ``kd_shear``, ``kd_bend`` [N s/m] (of body 0), ``restitution`` [-], ``friction`` [-],
-``gravity`` (its magnitude [m/s^2], direction kept), ``mass`` (every free particle's [kg]).
+``gravity`` (its magnitude [m/s^2], direction kept), ``mass`` (every free particle's [kg]),
+``velocity_x``, ``velocity_y``, ``velocity_z`` (the body's initial velocity [m/s]) and ``spin_x``,
+``spin_y``, ``spin_z`` (its initial angular velocity [rad/s] about its centre).
 """
 from __future__ import annotations
 
@@ -22,8 +25,11 @@ import numpy as np
 from .lattice import SPRING_KINDS
 from .spring_codes import spring_group
 
+AXES = ("x", "y", "z")
+VELOCITY = tuple(f"velocity_{a}" for a in AXES)
+SPIN = tuple(f"spin_{a}" for a in AXES)
 PARAMS = tuple([f"k_{k}" for k in SPRING_KINDS] + [f"kd_{k}" for k in SPRING_KINDS]
-               + ["restitution", "friction", "gravity", "mass"])
+               + ["restitution", "friction", "gravity", "mass", *VELOCITY, *SPIN])
 H = 1e-30  # the imaginary step: far below any parameter's rounding, so Re is the plain run
 TINY = 1e-30  # forces.TINY: added to a spring's length before dividing by it
 
@@ -46,6 +52,12 @@ class Problem:
         self.group_kd = m.group_kd.to_numpy()[: m.n_groups].astype(np.float64)
         self.mass = m.mass_np.copy()
         self.x0, self.v0 = m.x0_np.copy(), m.v0_np.copy()
+        # v0 = velocity + spin x (x0 - centre) (builder.py): kept as those two and what is left over
+        spec = m.bodies[0].spec
+        self.velocity = np.asarray(spec.velocity, dtype=np.float64)
+        self.spin = np.asarray(spec.angular_velocity, dtype=np.float64)
+        self.arm = self.x0 - np.asarray(spec.center, dtype=np.float64)
+        self.v0_rest = self.v0 - (self.velocity + np.cross(self.spin, self.arm))
         self.gravity = np.asarray(m.gravity[None].to_numpy(), dtype=np.float64)
         self.contact = t.has_contact
         if self.contact:
@@ -73,6 +85,8 @@ class Problem:
         free = self.mass[self.mass > 0]
         out.update(restitution=self.restitution, friction=self.friction,
                    gravity=float(np.linalg.norm(self.gravity)), mass=float(free[0]) if len(free) else 0.0)
+        out.update({name: float(c) for name, c in zip(VELOCITY, self.velocity)})
+        out.update({name: float(c) for name, c in zip(SPIN, self.spin)})
         return out
 
     def _coefficients(self, values: dict, seed: str | None):
@@ -90,14 +104,18 @@ class Problem:
         free = self.mass > 0
         inv_mass = np.zeros(len(self.mass), dtype=dtype)
         inv_mass[free] = 1.0 / bump("mass")
-        return gk[self.group], gkd[self.group], gravity, inv_mass, free, bump("restitution"), bump("friction")
+        velocity = np.array([bump(name) for name in VELOCITY])
+        spin = np.array([bump(name) for name in SPIN])
+        v0 = self.v0_rest + velocity + np.cross(spin, self.arm)
+        return (gk[self.group], gkd[self.group], gravity, inv_mass, free, bump("restitution"), bump("friction"),
+                v0)
 
     def trajectory(self, values: dict, frame_steps: list[int], seed: str | None = None) -> np.ndarray:
         """Positions [m] at the given step counts, [frames, particles, 3]; with ``seed`` their
         derivative with respect to that parameter instead (same shape, [m per unit])."""
-        k, kd, gravity, inv_mass, free, kr, mu = self._coefficients(values, seed)
+        k, kd, gravity, inv_mass, free, kr, mu, v0 = self._coefficients(values, seed)
         dtype = complex if seed else float
-        x, v = self.x0.astype(dtype), self.v0.astype(dtype)
+        x, v = self.x0.astype(dtype), v0.astype(dtype)
         a_end, b_end = self.pairs[:, 0], self.pairs[:, 1]
         dt = self.dt
         out = []
@@ -165,26 +183,31 @@ class Problem:
         return x, {p: self.trajectory(values, frame_steps, seed=p) for p in params}
 
 
-BOUNDS = {"restitution": (0.0, 1.0), "friction": (0.0, np.inf)}  # the others: > 0
+BOUNDS = {"restitution": (0.0, 1.0), "friction": (0.0, np.inf),
+          **{name: (-np.inf, np.inf) for name in VELOCITY + SPIN}}  # the others: > 0
 POSITIVE_FLOOR = 1e-9  # a stiffness, damping, mass or gravity is kept at least this fraction of its start
 
 
 def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: list[str], start: dict | None = None,
-        max_iters: int = 30, tol: float = 1e-12, progress=None) -> dict:
+        max_iters: int = 30, tol: float = 1e-12, progress=None, particles=None, step_tol: float = 1e-7) -> dict:
     """Levenberg-Marquardt with bounds on ``params`` so that the positions at ``frame_steps``
-    match ``target`` [frames, particles, 3]. Loss: mean over frames and particles of the squared
-    distance [m^2]. Each iteration takes one Jacobian (one pass per parameter) and one or more
-    trial runs. Returns values, Gauss-Newton standard errors, loss history, counts.
+    match ``target`` [frames, particles, 3] (with ``particles``, a list of particle indices, the
+    target holds those particles only: marker tracks). It stops when the loss falls by less than
+    ``tol`` of itself in an iteration, or no parameter moves by more than ``step_tol`` of its start
+    (a kink of a contact's loss can hold it there for many tiny steps). Loss: mean over frames and particles of the squared
+    distance [m^2]. Each iteration takes one Jacobian (``problem.jacobian``: one pass per parameter
+    here, one pass for all of them with ``tangent.TangentProblem``) and one or more trial runs. Returns values, Gauss-Newton standard errors, loss history, counts.
     ``progress(iteration, loss, values)`` is called after each iteration."""
     values = dict(problem.values() if start is None else start)
     scale = {p: abs(values[p]) if values[p] != 0 else 1.0 for p in params}
     count = target[..., 0].size
     runs, grads = 0, 0
+    sel = slice(None) if particles is None else np.asarray(particles, dtype=np.int64)
 
     def residual(vals):
         nonlocal runs
         runs += 1
-        return ((problem.trajectory(vals, frame_steps) - target) / np.sqrt(count)).ravel()
+        return ((problem.trajectory(vals, frame_steps)[:, sel] - target) / np.sqrt(count)).ravel()
 
     def clip(name, value):
         lo, hi = BOUNDS.get(name, (POSITIVE_FLOOR * scale[name], np.inf))
@@ -198,10 +221,11 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
     for it in range(max_iters):
         x_and = problem.jacobian(values, params, frame_steps)
         grads += 1
-        jac = np.stack([x_and[1][p].ravel() / np.sqrt(count) * scale[p] for p in params], axis=1)
-        r = ((x_and[0] - target) / np.sqrt(count)).ravel()
+        jac = np.stack([x_and[1][p][:, sel].ravel() / np.sqrt(count) * scale[p] for p in params], axis=1)
+        r = ((x_and[0][:, sel] - target) / np.sqrt(count)).ravel()
         jtj, jtr = jac.T @ jac, jac.T @ r
         improved = False
+        moved = 0.0
         for _ in range(12):
             step = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-30), -jtr)
             trial = dict(values)
@@ -210,6 +234,7 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
             rt = residual(trial)
             lt = float(rt @ rt)
             if lt < loss:
+                moved = max(abs(trial[p] - values[p]) / scale[p] for p in params)
                 values, improved = trial, True
                 lam = max(lam / 3, 1e-9)
                 break
@@ -217,15 +242,16 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
         history.append(min(loss, lt) if improved else loss)
         if progress is not None:
             progress(it + 1, history[-1], values)
-        if not improved or loss - history[-1] <= tol * max(loss, 1e-300) or history[-1] == 0.0:
+        if (not improved or loss - history[-1] <= tol * max(loss, 1e-300) or history[-1] == 0.0
+                or moved <= step_tol):
             loss = history[-1]
             break
         loss = history[-1]
     # Gauss-Newton uncertainty at the result: sigma^2 (J^T J)^-1, sigma^2 from the residual
     x_and = problem.jacobian(values, params, frame_steps)
     grads += 1
-    jac = np.stack([x_and[1][p].ravel() / np.sqrt(count) for p in params], axis=1)
-    r = ((x_and[0] - target) / np.sqrt(count)).ravel()
+    jac = np.stack([x_and[1][p][:, sel].ravel() / np.sqrt(count) for p in params], axis=1)
+    r = ((x_and[0][:, sel] - target) / np.sqrt(count)).ravel()
     dof = max(r.size - len(params), 1)
     sigma2 = float(r @ r) * count / dof
     try:
