@@ -9,6 +9,7 @@ stiffness and step, two runs of the study's cube (``precision.cube_sets``):
   step never gains energy); ``deepest_inside_m`` the deepest particle inside the terrain;
   ``apex`` / ``ref_apex`` the centre of mass's first bounce apex against the reference's (RK4 at
   1/64 of its limit, the study's reference task); ``rest_height`` / ``ref_rest_height``;
+  ``rest_time`` / ``ref_rest_time`` when the centre of mass comes to rest (``precision.rest_time``);
 * a push: the cube resting face down on the plane, given ``PUSH_SPEED`` along x. Coulomb friction
   stops a rigid block after v^2 / (2 mu g) (``slide_expected_m``); ``slide_m`` is how far the
   centre of mass went until it came to rest (or the run's end).
@@ -27,7 +28,7 @@ from .energy import relative_rise
 
 STEPS = (1.0 / 30.0, 1.0 / 60.0)  # [s] the frame steps of interactive use
 SOLVERS = ("implicit_euler", "fast_mass_spring")
-SETTINGS = ("default", "tight", "bdf2")
+SETTINGS = ("default", "tight", "bdf2", "sdirk2")
 PUSH_SPEED = 3.0  # [m/s] initial sliding speed of the push
 PUSH_TIME = 2.0  # [s] (the block stops after v / (mu g) = 1.0 s at mu 0.3)
 
@@ -87,6 +88,7 @@ def task(name: str, scales, refs: dict, quick: bool) -> list[dict]:
                        "deepest_inside_m": max(d["inside"], s["inside"]),
                        "apex": P.first_apex(d["times"], h), "ref_apex": ref["apex"],
                        "rest_height": float(h[-1]), "ref_rest_height": ref["rest_height"],
+                       "rest_time": P.rest_time(d["times"], d["com"]), "ref_rest_time": ref["rest_time"],
                        "slide_m": slide_distance(s), "slide_expected_m": PUSH_SPEED**2 / (2.0 * mu * g),
                        "energy_clamped_steps": int(d["stats"]["energy_clamped_steps"]) + int(s["stats"]["energy_clamped_steps"]),
                        "failed_solve_steps": int(d["stats"]["failed_solve_steps"]) + int(s["stats"]["failed_solve_steps"]),
@@ -112,16 +114,18 @@ def markdown(rows: list[dict]) -> list[str]:
     """The plausibility table (REPORT.md / PRECISION.md section)."""
     out = ["## Plausibility at frame steps (1/30 and 1/60 s)", "", __doc__.split("\n\n", 1)[1].strip(), "",
            "| solver | settings | stiffness | dt [s] | energy rise | deepest inside [m] | apex / reference [m] "
-           "| rest height / reference [m] | slide / v^2/(2 mu g) [m] | clamped / failed / unconverged / all steps |",
-           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+           "| rest height / reference [m] | at rest / reference [s] | slide / v^2/(2 mu g) [m] "
+           "| clamped / failed / unconverged / all steps |",
+           "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         if r["diverged"]:
             out.append(f"| {r['integrator']} | {r['settings']} | x{r['stiffness_scale']:g} | 1/{1 / r['dt']:.0f} | diverged |"
-                       " | | | | |")
+                       " | | | | | |")
             continue
         out.append(f"| {r['integrator']} | {r['settings']} | x{r['stiffness_scale']:g} | 1/{1 / r['dt']:.0f} | "
                    f"{r['energy_rise']:.1e} | {r['deepest_inside_m']:.1e} | "
                    f"{_m(r['apex'])} / {_m(r['ref_apex'])} | {_m(r['rest_height'])} / {_m(r['ref_rest_height'])} | "
+                   f"{_m(r.get('rest_time'))} / {_m(r.get('ref_rest_time'))} | "
                    f"{_m(r['slide_m'])} / {_m(r['slide_expected_m'])} | "
                    f"{r['energy_clamped_steps']} / {r['failed_solve_steps']} / {r['unconverged_steps']} / {r['steps']} |")
     return out

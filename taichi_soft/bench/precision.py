@@ -56,6 +56,7 @@ TOLERANCES = {  # label -> implicit solver options: tolerances (residual [m/s^2]
     "tight": {"implicit_euler": {"newton_tol": 1e-3, "newton_iters": 100, "velocity_tol": 0.0},
               "fast_mass_spring": {"tol": 1e-3, "iterations": 200, "velocity_tol": 0.0}},
     "bdf2": {"implicit_euler": {"scheme": "bdf2"}, "fast_mass_spring": {"scheme": "bdf2"}},
+    "sdirk2": {"implicit_euler": {"scheme": "sdirk2"}, "fast_mass_spring": {"scheme": "sdirk2"}},
 }
 # --quick (the test of the machinery): one method per family, default tolerances, two stiffnesses
 QUICK_METHODS = ("semi_implicit_euler", "fast_mass_spring")
