@@ -15,7 +15,7 @@ from .. import cpu_threads, runtime
 from .allocation import check_tree_room
 from .bodies import BodySpec
 from .builder import ModelBuilder
-from .collision import BodyContacts, body_radius
+from .contact.bodies import BodyContacts, body_radius
 from ..errors import UserError
 from .lattice import SPRING_KINDS, rotation_matrix
 from .forces import Diagnostics
@@ -23,7 +23,7 @@ from .integrators import make_integrator, names as integrator_names
 from .integrators.implicit.health import assess
 from .integrators.linear_stability import divergence_hint
 from .scene import Scene, scene_from_dict
-from .terrain import make_terrain
+from .contact.terrain import make_terrain
 
 
 # Wall time [s] of one launch of a run that keeps no frames (``Simulation._free_run``): long
