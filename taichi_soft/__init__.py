@@ -1,8 +1,9 @@
 """taichi-soft: mass-spring soft bodies on Taichi.
 
 Nothing here initialises Taichi: call ``taichi_soft.runtime.init(arch, precision)`` first.
-Physics lives in ``model``, ``forces``, ``terrain`` and ``integrators``; ``simulation`` ties a
-scene to them; rendering and the command line sit on top and are never imported by physics.
+Physics lives in ``sim``: ``model``, ``forces``, ``contact`` (terrains, body contact) and
+``integrators``; ``simulation`` ties a scene to them; rendering and the command line sit on top
+and are never imported by physics.
 """
 import os
 

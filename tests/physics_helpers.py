@@ -6,7 +6,7 @@ from taichi_soft.sim.bodies import BodySpec
 from taichi_soft.sim.builder import ModelBuilder
 from taichi_soft.sim.forces import ForceEvaluator
 from taichi_soft.sim.integrators import make_integrator
-from taichi_soft.sim.terrain import CONTACT_DEFAULTS, make_terrain
+from taichi_soft.sim.contact.terrain import CONTACT_DEFAULTS, make_terrain
 
 
 def build(n=4, size=1.5, gravity=(0.0, 0.0, 0.0), terrain="none", geometry=None, contact=None, **body):

@@ -6,7 +6,7 @@ from conftest import run_cli
 from taichi_soft.bench.stability import largest_stable_dt
 from taichi_soft.sim.integrators import make_integrator
 from taichi_soft.sim.model import Model
-from taichi_soft.sim.terrain import make_terrain
+from taichi_soft.sim.contact.terrain import make_terrain
 
 
 def _single_spring(k, c, m=1.0):

@@ -280,7 +280,7 @@ import json, sys
 import numpy as np
 from taichi_soft import runtime
 runtime.init("cpu", "f64", cache_loop_invariant_global_vars=True)
-from taichi_soft.sim.collision import SPAN
+from taichi_soft.sim.contact.bodies import SPAN
 from taichi_soft.sim.integrators.implicit.pair_list import RHO
 from taichi_soft.sim.lattice import lattice_points
 from taichi_soft.sim.scene import load_scene

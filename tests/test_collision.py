@@ -3,7 +3,7 @@ one body that compile no contact code."""
 import numpy as np
 import pytest
 
-from taichi_soft.sim.collision import contact_radii
+from taichi_soft.sim.contact.bodies import contact_radii
 
 G = 9.8
 
@@ -123,7 +123,7 @@ def test_start_inside_terrain_or_another_body_is_refused(cli, tmp_path, sets, me
 
 def test_a_terrain_surface_crossing_a_segment_is_found_on_each_kind():
     """Segments through, beside and ending on each surface, against the geometry worked by hand."""
-    from taichi_soft.sim.terrain import make_terrain
+    from taichi_soft.sim.contact.terrain import make_terrain
 
     a = np.array([[0.0, -2.0, 0.0], [3.0, -2.0, 0.0], [0.0, -9.0, 0.0], [0.0, 1.0, 0.0]])
     b = np.array([[0.0, 2.0, 0.0], [3.0, 2.0, 0.0], [0.0, -5.0, 0.0], [0.0, 0.5, 0.0]])

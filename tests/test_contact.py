@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from taichi_soft.sim.integrators import make_integrator
-from taichi_soft.sim.terrain import CONTACT_DEFAULTS
+from taichi_soft.sim.contact.terrain import CONTACT_DEFAULTS
 
 from physics_helpers import build
 

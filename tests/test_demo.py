@@ -307,11 +307,11 @@ def test_demo_window_draws_the_scene_and_hud(xvfb, tmp_path):
 def test_every_advertised_control_works_through_real_x_input(xvfb, tmp_path):
     """Keys pressed and buttons clicked through the X server (XTest), as a teacher would: every
     key the HUD advertises, the Screenshot, integrator buttons; the demo keeps running after each
-    (``taichi_soft.demo.scripted`` checks what each did), screenshots show the scene, a pause keeps
+    (``tests.x11.scripted`` checks what each did), screenshots show the scene, a pause keeps
     the plot's history, and Esc closes the window."""
     env = dict(os.environ, DISPLAY=xvfb, PYTHONUNBUFFERED="1", PYTHONPATH=str(ROOT))
     # 700 px: the panel's left column, one button per integrator, fits (at 640 its last rows are cut off)
-    proc = subprocess.run([sys.executable, "-m", "taichi_soft.demo.scripted", "--set", "body.0.n=3",
+    proc = subprocess.run([sys.executable, "-m", "tests.x11.scripted", "--set", "body.0.n=3",
                            "--resolution", "1024x700"], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=400)
     if "Vulkan" in proc.stderr and proc.returncode != 0 and "checks" not in proc.stdout:
@@ -588,7 +588,7 @@ def test_the_mouse_grabs_pins_and_pokes_and_a_recorded_session_replays(xvfb, tmp
     display and ends in exactly the live session's state."""
     env = dict(os.environ, DISPLAY=xvfb, PYTHONUNBUFFERED="1", PYTHONPATH=str(ROOT))
     session = tmp_path / "session.json"
-    proc = subprocess.run([sys.executable, "-m", "taichi_soft.demo.scripted", "--hands", "--yank",
+    proc = subprocess.run([sys.executable, "-m", "tests.x11.scripted", "--hands", "--yank",
                            "explicit_euler:0.002:1e6", "--record", str(session), "--resolution", "1024x640",
                            "--set", "body.0.n=3", "--set", "body.0.size=1.0", "--set", "body.0.center=[0, 0.5, 0]",
                            "--set", "body.0.rotation.degrees=0", "--set", "contact.restitution=0"],

@@ -4,6 +4,8 @@ import re
 import subprocess
 import sys
 
+import pytest
+
 from taichi_soft.paths import ROOT
 
 EXAMPLES = ROOT / "examples"
@@ -33,8 +35,34 @@ def test_rk4_is_closer_to_the_reference_than_semi_implicit_euler():
     assert float(errors["semi_implicit_euler"]) < 0.2, out
 
 
+def test_from_parts_falls_as_free_fall_says():
+    """No terrain, springs at rest: the centre falls g t^2 / 2, which RK4 integrates exactly."""
+    out = _run("from_parts.py")
+    t, fell, _ = (float(v) for v in re.search(r"t = ([0-9.]+) s\s+centre fell ([0-9.]+) m\s+\(g t\^2 / 2 = ([0-9.]+)",
+                                                 out).groups())
+    assert t == 0.5 and abs(fell - 0.5 * 9.8 * t ** 2) < 1e-8, out
+
+
+def test_from_parts_refuses_what_a_scene_file_refuses():
+    """The parts are validated as a TOML scene: the same message for the same bad key, before any work."""
+    from taichi_soft.errors import UserError
+    from taichi_soft.sim import BodySpec, Simulation, scene_from_dict
+
+    for parts, table, says in (
+            ({"bodies": [{"n": 1}]}, {"body": [{"n": 1}]}, "body.0.n = 1: must be an integer from 2 to"),
+            ({"bodies": [BodySpec()], "restitution": 1.5}, {"contact": {"restitution": 1.5}}, "contact.restitution"),
+            ({"bodies": [BodySpec()], "terrain": "lava"}, {"terrain": {"kind": "lava"}}, "terrain.kind = 'lava'"),
+            ({"bodies": [BodySpec()], "dt": -1.0}, {"sim": {"dt": -1.0}}, "sim.dt")):
+        with pytest.raises(UserError) as from_parts:
+            Simulation.from_parts(**parts)
+        with pytest.raises(UserError) as from_file:
+            scene_from_dict({"body": [{}], **table})
+        assert says in str(from_parts.value)
+        assert str(from_parts.value).split(": ", 1)[1] == str(from_file.value).split(": ", 1)[1]
+
+
 def test_every_example_is_tested():
-    tested = {"drop_cube.py", "compare_integrators.py"}
+    tested = {"drop_cube.py", "compare_integrators.py", "from_parts.py"}
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
 
 

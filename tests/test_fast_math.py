@@ -144,7 +144,7 @@ def test_scatter_of_any_graph_matches_the_reference():
     rest = np.linalg.norm(x0[pairs[:, 0]] - x0[pairs[:, 1]], axis=1) * 0.9
     model = Model(x0=x0, v0=np.zeros_like(x0), mass=np.ones(n), pairs=pairs, rest=rest, group=np.zeros(len(pairs)),
                   group_k=[500.0], group_kd=[2.0], gravity=(0.0, -9.8, 0.0), bodies=[])
-    from taichi_soft.sim.terrain import make_terrain
+    from taichi_soft.sim.contact.terrain import make_terrain
 
     terrain = make_terrain("none", n, {})
     integ = make_integrator("semi_implicit_euler", model, terrain, {"mode": "parallel", "forces": "scatter"})

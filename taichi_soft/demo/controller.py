@@ -6,7 +6,7 @@ run-time parameters (fields and kernel arguments), so a slider never triggers a 
 * integrator: switched live, continuing from the current state. Each integrator is built once
   per terrain and kept (building one compiles its kernels, 1-7 s on a CPU);
 * terrain: a ``Simulation`` of the same scene with ``terrain.kind`` overridden (its kernels are
-  compiled for that shape only, see ``taichi_soft.sim.terrain``), built on the first switch to that
+  compiled for that shape only, see ``taichi_soft.sim.contact.terrain``), built on the first switch to that
   terrain and kept, with its integrators, for every later one: a class flicking between terrains
   compiles each once and never runs out of Taichi field trees (``sim.allocation``). Every current
   setting is carried over and the cube starts again from its initial state;
@@ -41,7 +41,7 @@ from ..sim.integrators import REGISTRY, make_integrator, scene_options
 from ..sim.lattice import SPRING_KINDS, rotation_matrix
 from ..sim.scene import load_scene
 from ..sim.simulation import Simulation
-from ..sim.terrain import KINDS as TERRAIN_KINDS
+from ..sim.contact.terrain import KINDS as TERRAIN_KINDS
 from .controller_state import ENERGY_KEYS, EnergyHistory, Settings
 from .live_controls import HandControls, LiveParameters, recorded
 

@@ -63,7 +63,9 @@ class LiveParameters:
             self.settings.restitution = float(restitution)
         if friction is not None:
             self.settings.friction = float(friction)
-        self.sim.terrain.set_contact(restitution=restitution, friction=friction)
+        # Both coefficients in one write whichever moved: ``assign`` compiles one kernel per set of
+        # fields it writes, so a slider moving one alone would compile a second writer on its first move.
+        self.sim.terrain.set_contact(restitution=self.settings.restitution, friction=self.settings.friction)
 
     @recorded
     def set_particle_mass(self, mass: float):

@@ -1,6 +1,6 @@
 """Triangle meshes to draw: the terrain (numpy, built once) and the bodies' surfaces (on the device).
 
-Terrain meshes match the collision shapes of ``taichi_soft.sim.terrain`` exactly: vertices lie on the
+Terrain meshes match the collision shapes of ``taichi_soft.sim.contact.terrain`` exactly: vertices lie on the
 plane / sphere / bowl surface, normals are the analytic ones. A plane is infinite, so it is drawn
 as a finite checkerboard square around where the bodies can get to within the run.
 

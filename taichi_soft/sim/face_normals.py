@@ -1,10 +1,10 @@
 """Which faces of its body each particle lies on, in the body's rest frame: what makes body-body
-contact flat along a face (``collision``).
+contact flat along a face (``contact.bodies``).
 
 A lattice point lies on a face for each of its six axis neighbours that is missing (out of the
 cube, or outside a mesh body's lattice), with that direction as the face's outward normal: one face
 for a point inside a face, two on an edge, three at a corner, none inside the body. At run time the
-normals turn with the body's best-fit rotation (``collision.BodyContacts``), computed from the rest
+normals turn with the body's best-fit rotation (``contact.bodies.BodyContacts``), computed from the rest
 positions returned here.
 """
 

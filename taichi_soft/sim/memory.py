@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import subprocess
 
-from . import collision
+from .contact import bodies as body_contact
 from ..errors import UserError
 from .footprint import MODEL, MODEL_SPRINGS, STATE, Buffers, Counts
 
@@ -167,7 +167,7 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     if len(scene_data["body"]) > 1:  # body-body contact: one per simulation, and the implicit pair terms
         from .integrators.implicit import pairs
 
-        fields += len(names) * collision.field_bytes(n_p, real)
+        fields += len(names) * body_contact.field_bytes(n_p, real)
         fields += sum(pairs.field_bytes(n_p, real) for cls in classes if cls.implicit)
     base = max(cls.BASE_BYTES for cls in classes)
     host = base + len(names) * (HOST_PARTICLE_BYTES * n_p + _surface_host_bytes(scene_data))

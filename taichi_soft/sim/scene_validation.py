@@ -12,9 +12,9 @@ import math
 
 from .bodies import BodySpec
 from ..errors import UserError
-from .terrain import CONTACT_DEFAULTS
-from .terrain import DEFAULTS as TERRAIN_DEFAULTS
-from .terrain import KINDS as TERRAIN_KINDS
+from .contact.terrain import CONTACT_DEFAULTS
+from .contact.terrain import DEFAULTS as TERRAIN_DEFAULTS
+from .contact.terrain import KINDS as TERRAIN_KINDS
 
 SIM_DEFAULTS = {"integrator": "semi_implicit_euler", "dt": 0.001, "duration": 5.0, "gravity": [0.0, -9.8, 0.0]}
 # Body defaults: the fields of bodies.BodySpec (their one home) in the scene's layout.

@@ -15,15 +15,15 @@ from .. import cpu_threads, runtime
 from .allocation import check_tree_room
 from .bodies import BodySpec
 from .builder import ModelBuilder
-from .collision import BodyContacts, body_radius
+from .contact.bodies import BodyContacts, body_radius
 from ..errors import UserError
 from .lattice import SPRING_KINDS, rotation_matrix
 from .forces import Diagnostics
-from .integrators import make_integrator
+from .integrators import make_integrator, names as integrator_names
 from .integrators.implicit.health import assess
 from .integrators.linear_stability import divergence_hint
-from .scene import Scene
-from .terrain import make_terrain
+from .scene import Scene, scene_from_dict
+from .contact.terrain import make_terrain
 
 
 # Wall time [s] of one launch of a run that keeps no frames (``Simulation._free_run``): long
@@ -43,6 +43,20 @@ def body_spec(body: dict) -> BodySpec:
         shear=(body["shear"]["k"], body["shear"]["damping"]),
         bend=(body["bend"]["k"], body["bend"]["damping"]),
     )
+
+
+def body_table(spec: BodySpec) -> dict:
+    """A ``BodySpec`` as the ``[[body]]`` table ``body_spec`` reads back (the inverse of ``body_spec``)."""
+    table = {"n": spec.n, "size": spec.size, "shape": spec.shape, "particle_mass": spec.particle_mass,
+             "center": list(spec.center), "rotation": {"axis": list(spec.rotation_axis), "degrees": spec.rotation_degrees},
+             "velocity": list(spec.velocity), "angular_velocity": list(spec.angular_velocity),
+             "initial_stretch": list(spec.initial_stretch),
+             **{kind: {"k": getattr(spec, kind)[0], "damping": getattr(spec, kind)[1]}
+                for kind in ("stretch", "shear", "bend")}}
+    table.update({k: getattr(spec, k) for k in ("mesh", "scale") if getattr(spec, k) is not None})
+    if spec.scale is not None:
+        del table["size"]  # a mesh scaled by ``scale`` takes its size from the mesh (a scene gives one of the two)
+    return table
 
 
 def step_count(duration: float, dt: float) -> int:
@@ -126,6 +140,31 @@ class Simulation:
         self.reset()
         if check:  # refuse a body inside the terrain or another body (UserError)
             check_start(self)
+
+    @classmethod
+    def from_parts(cls, bodies, terrain="plane", integrator: str = "semi_implicit_euler", dt: float = 1e-3,
+                   gravity=None, restitution: float | None = None, friction: float | None = None,
+                   solver: dict | None = None, check: bool = True) -> Simulation:
+        """A simulation built in Python, without a scene file: the parts become a scene's tables
+        and are validated exactly as a TOML scene is (the same ``UserError`` messages, naming the
+        key as ``body.0.n`` and so on).
+
+        ``bodies``: a list of ``BodySpec`` or of dicts with the keys of a ``[[body]]`` table
+        (docs/scenes.md), missing keys at their defaults. ``terrain``: a kind (``"plane"``,
+        ``"none"``, ...) at its default geometry, or a dict with the keys of ``[terrain]``.
+        ``integrator``: a registered name; ``dt`` [s]; ``gravity`` [m/s^2], a 3-vector (default
+        (0, -9.8, 0)); ``restitution`` [0, 1] and ``friction`` (Coulomb coefficient, >= 0) of
+        the contact, at the scene defaults when None; ``solver``: the integrator's options (the
+        ``[solver]`` table). ``check`` refuses a body that starts inside the terrain or another body.
+        """
+        sim = {"integrator": integrator, "dt": dt}
+        if gravity is not None:
+            sim["gravity"] = list(gravity)
+        contact = {k: v for k, v in (("restitution", restitution), ("friction", friction)) if v is not None}
+        raw = {"sim": sim, "body": [b if isinstance(b, dict) else body_table(b) for b in bodies],
+               "terrain": {"kind": terrain} if isinstance(terrain, str) else terrain,
+               "contact": contact, "solver": dict(solver or {})}
+        return cls(scene_from_dict(raw, "from_parts", integrator_names=integrator_names()), check=check)
 
     # -- clock ---------------------------------------------------------------------------
     @property

@@ -32,7 +32,7 @@ def scene_options(name: str, scene_data: dict) -> dict:
 
 def make_integrator(name: str, model, terrain, options: dict | None = None, contacts=None) -> Integrator:
     """Instantiate the integrator called ``name`` (``contacts``: the simulation's
-    ``collision.BodyContacts``, or None for one body); unknown names raise ``UserError``, and so
+    ``contact.bodies.BodyContacts``, or None for one body); unknown names raise ``UserError``, and so
     does a runtime about to run out of field trees (``allocation.check_tree_room``)."""
     cls = integrator_class(name)
     check_tree_room()

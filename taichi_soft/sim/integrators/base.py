@@ -134,7 +134,7 @@ class Integrator:
         self.mode = self.options.mode
         self._step_counter = 0
         model.add_listener(self)
-        # Body-body contact (collision.BodyContacts, shared by every integrator of a simulation) or
+        # Body-body contact (contact.bodies.BodyContacts, shared by every integrator of a simulation) or
         # None: given at construction, read with ti.static when the step compiles.
         self.contacts = contacts
         # Explicit methods step through the fused force passes. Implicit solvers assemble their

@@ -30,7 +30,7 @@ class builds the list. The rule (docs/implicit.md, "Contact between bodies"):
 
 import taichi as ti
 
-from ...collision import SPAN, BodyGrid, table_size
+from ...contact.bodies import SPAN, BodyGrid, table_size
 
 # Capacity of the candidate list per particle (overflow is counted). The tube's list holds about the
 # pairs in contact: the pile scene needs under 1 per particle at 1/60 s and at 0.1 s

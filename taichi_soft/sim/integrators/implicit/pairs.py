@@ -2,7 +2,7 @@
 
 Only an implicit integrator of a scene with several bodies builds a ``PairContacts`` (a one-body
 scene compiles none of this). A pair (i, j) of particles of different bodies has the explicit
-methods' geometry (``collision``): on a face, a normal n from the bodies' face normals and the
+methods' geometry (``contact.bodies``): on a face, a normal n from the bodies' face normals and the
 overlap o = R_ij - n . (x_i - x_j) along it, weighted by w = (1 - |t|^2 / s^2)^2 of the tangential
 offset t within the face spacing s, so that faces are flat; otherwise spheres, o = R_ij - |x_i - x_j|,
 w = 1. In contact when o > 0 and w > 0. One difference: an edge or corner particle's face normal is
@@ -178,7 +178,7 @@ class PairContacts(PairList):
     @ti.func
     def _gap(self, p, d):
         """(overlap o [m], weight w, unit normal n from j toward i) of pair p at d = x_i - x_j: the
-        explicit methods' geometry (``collision.BodyGrid._pair_gap``) with the normal and face frozen
+        explicit methods' geometry (``contact.bodies.BodyGrid._pair_gap``) with the normal and face frozen
         at x_n (``_geometry``); a pair of spheres' normal follows d (the frozen friction normal if
         d = 0). In contact when o > 0 and w > 0; w = 0 beyond the pair's span, as there."""
         i, j = self.pa[p], self.pb[p]

@@ -46,7 +46,7 @@ After every step (``Integrator._body_contacts``) the pass
 import numpy as np
 import taichi as ti
 
-from .face_normals import rest_frames
+from ..face_normals import rest_frames
 
 CELL_CAPACITY = 16  # particle slots per hash bucket
 # Jacobi sweeps of the velocity impulses per step: with relaxed (averaged) impulses one sweep

@@ -1,7 +1,7 @@
 """The demo driven by real X input, as a teacher would drive it: every advertised control checked.
 
-    DISPLAY=:1 python -m taichi_soft.demo.scripted [--scene plane] [--set body.0.n=3 ...]
-                                                   [--resolution 1024x640] [--minutes M]
+    DISPLAY=:1 python -m tests.x11.scripted [--scene plane] [--set body.0.n=3 ...]
+                                          [--resolution 1024x640] [--minutes M]
 
 Opens the demo window (started paused) and presses every key the HUD advertises and clicks
 panel buttons through the X server (``xinput.XInput``, XTest), checking after each what it did to
@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from .panel import DRAW_KEYS
+from taichi_soft.demo.panel import DRAW_KEYS
 from .control_checks import check_every_control, escape_check
 from .driver import CAMERA_KEYS, Session
 from .hand_checks import check_hands
@@ -108,14 +108,14 @@ def soak(s: Session, minutes: float, seed: int = 0) -> dict:
 
 
 def main(argv=None) -> int:
-    from ..runtime import init
-    from ..sim.scene_validation import parse_resolution
-    from .app import DemoApp
-    from .controller import DemoController
-    from .display import open_demo_window
+    from taichi_soft.runtime import init
+    from taichi_soft.sim.scene_validation import parse_resolution
+    from taichi_soft.demo.app import DemoApp
+    from taichi_soft.demo.controller import DemoController
+    from taichi_soft.demo.display import open_demo_window
     from .xinput import XInput
 
-    p = argparse.ArgumentParser(prog="python -m taichi_soft.demo.scripted", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m tests.x11.scripted", description=__doc__.splitlines()[0])
     p.add_argument("--scene", default="plane")
     p.add_argument("--set", action="append", default=[])
     p.add_argument("--resolution", default="1024x640")
@@ -134,7 +134,7 @@ def main(argv=None) -> int:
     window = open_demo_window("taichi-soft demo", size, fps_limit=1000)
     app = DemoApp(DemoController(args.scene, args.set, "semi_implicit_euler", paused=True), size, window)
     if args.record:
-        from .app import start_session
+        from taichi_soft.demo.app import start_session
 
         start_session(app, args.record)
     xin = XInput()

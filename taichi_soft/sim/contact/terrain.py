@@ -24,7 +24,7 @@ live in 0-d fields so they can be tuned between steps without recompiling.
 import numpy as np
 import taichi as ti
 
-from .scalar_fields import assign
+from ..scalar_fields import assign
 
 KINDS = ("none", "plane", "tilted_plane", "sphere", "bowl")
 

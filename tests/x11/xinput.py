@@ -1,6 +1,6 @@
 """Real keyboard and mouse input for an X display, through the XTest extension (libXtst).
 
-Used to drive the demo window as a teacher would (``demo.scripted``): the events go through the
+Used to drive the demo window as a teacher would (``tests.x11.scripted``): the events go through the
 X server, GLFW and GGUI exactly as a keyboard's would, so a key the window does not deliver
 fails there too. Plain ctypes; needs libX11 and libXtst (present wherever Xvfb is).
 """

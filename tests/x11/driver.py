@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..render.camera import project
-from ..render.window import window_rgb
-from .panel import PANEL_X
+from taichi_soft.render.camera import project
+from taichi_soft.render.window import window_rgb
+from taichi_soft.demo.panel import PANEL_X
 
 CAMERA_KEYS = ("w", "a", "s", "d", "q", "e")
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .panel import DRAW_KEYS
+from taichi_soft.demo.panel import DRAW_KEYS
 from .driver import CAMERA_KEYS, Session, run_checks
 
 
