@@ -16,7 +16,7 @@ inside the terrain and the deepest overlap between bodies, and the candidate pai
 the pair list (``health``). ``quick`` (what the tests run): implicit_euler on a 3^3 cube and
 fast_mass_spring on three_cubes made of 4^3 cubes, x1, 1/30 s, 1 s.
 
-(Before this study the matrix was ``scripts/bench/matrix11.py``; its numbers in docs/implicit.md
+(Before this study the matrix was ``scripts/bench/matrix11.py``; its numbers in docs/benchmarks/IMPLICIT.md
 are pinned to the commits they name.)
 """
 from __future__ import annotations

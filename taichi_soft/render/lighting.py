@@ -7,7 +7,7 @@ GGUI's mesh fragment shader (Taichi 1.7.4, ``shaders/Mesh_vk.frag``) computes, p
 
 with ``l`` the unit direction from the pixel's surface point to the light and ``n`` the
 interpolated normal; no specular term, no attenuation. On a GPU that is free; on Mesa's lavapipe
-every point light adds 15-20 ms to a 1280 x 720 frame (docs/rendering.md). ``shade`` evaluates
+every point light adds 15-20 ms to a 1280 x 720 frame (docs/benchmarks/RENDERING.md). ``shade`` evaluates
 the same formula at every vertex in one Taichi kernel, and the mesh is then drawn with an
 ambient light of 1 and no point light, so the fragment stage only interpolates colours
 (Gouraud shading). On surfaces cut fine enough (1 m terrain tiles, lights tens of metres away,

@@ -54,7 +54,7 @@ def choose_pipeline(kind: str, options) -> str:
 
     ``auto`` picks overlap when frames are drawn (``--video``, ``--frames``): measured faster on
     the 2-core VM, the render process's start-up (a second Python with Taichi, ~0.8 s CPU) included
-    (docs/rendering.md, "Overlap"); else serial. Without frames (meshes or caches only) there is
+    (docs/benchmarks/RENDERING.md, "Overlap"); else serial. Without frames (meshes or caches only) there is
     nothing to draw beside the simulation, and overlap is refused as a bad combination.
     """
     if kind not in PIPELINES:

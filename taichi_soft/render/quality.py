@@ -3,7 +3,7 @@
 ``low``: what GGUI draws (the checker filtered for its footprint, one sample a pixel, no
 shadows); ``medium``: + the bodies' shadows from the key light; ``high``: + the bodies' edges with
 2 x 2 samples a pixel and, for a fixed camera, the terrain with 4 x 4. The default was chosen by
-measurement (docs/rendering.md, "Shadows and anti-aliasing"). Imports nothing heavy: the CLI
+measurement (docs/benchmarks/RENDERING.md, "Shadows and anti-aliasing"). Imports nothing heavy: the CLI
 validates the choice before Taichi starts.
 """
 from ..errors import UserError

@@ -82,7 +82,8 @@ def draw_mesh(scene, identity, vertices, indices, normals, colors, two_sided=Fal
     64-byte transform buffer is allocated but never written (``renderables/mesh.cpp``). When that
     uninitialised memory holds an Inf or NaN, 0 * Inf = NaN turns every vertex into NaN and the
     whole mesh is silently dropped; the recycled allocation keeps the same bytes, so the mesh
-    stayed missing in every frame of that view. An explicit identity transform is defined memory.
+    stayed missing in every frame of that view. An explicit identity transform is defined memory
+    (docs/decisions/ggui-mesh-instance-transform.md).
     """
     scene.mesh_instance(vertices, indices, normals, per_vertex_color=colors, two_sided=two_sided, transforms=identity)
 

@@ -112,7 +112,7 @@ class TerrainContact:
         A particle held from the start that was held at the end of the previous step starts with the
         previous step's normal force as its friction multiplier (warm start): the first gradient, at
         the predictor, over-counts the load (the predictor compresses the springs above the held
-        layer by h^2 g), and refreezing from there cost iterations and friction (docs/implicit.md).
+        layer by h^2 g), and refreezing from there cost iterations and friction (docs/benchmarks/IMPLICIT.md).
         The previous step's force, h_prev^2 |F_n| (``lam_end``), is rescaled to this step's h^2."""
         warm = ti.cast(0.0, float)
         if self.sc.h2_prev[None] > 0:

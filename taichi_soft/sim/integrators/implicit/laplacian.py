@@ -35,7 +35,7 @@ def cholesky_pays(arch: str, counts) -> bool:
 # x10 / x100 / x1000 (under contact on stiff springs the factor is only a PCG preconditioner, one
 # serial pair of triangular solves per CG iteration). Not what auto picks: a cube pushed across the
 # plane at x1000 then failed its line search on 46 of 120 steps at 1/30 s and slid 0.76 m instead
-# of Coulomb's 1.53 m (docs/implicit.md, "Measured results").
+# of Coulomb's 1.53 m (docs/benchmarks/IMPLICIT.md).
 FACTOR_MAX_STIFFNESS = 10.0
 FACTORISED = ("cholesky", "by_stiffness")  # resolved global_solver values that factorise A
 

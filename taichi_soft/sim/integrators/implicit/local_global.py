@@ -161,7 +161,7 @@ class FastMassSpring(ImplicitIntegrator):
         """1: CG is Jacobi-preconditioned now: without a factor; with one, on stiff springs
         (by_stiffness, ``matrix.jacobi_now``) and while body pairs touch (their penalty is not in the
         factor: on the pile at 1/60 s the factor-preconditioned steps took 2.2x the time of Jacobi
-        ones, docs/implicit.md)."""
+        ones, docs/benchmarks/IMPLICIT.md)."""
         out = 1
         if ti.static(self.factorised):
             out = self.matrix.jacobi_now[None]
@@ -212,7 +212,7 @@ class FastMassSpring(ImplicitIntegrator):
         iteration cap with residuals of 10-30 m/s^2 and the energy clamp acted on 7 of 180 steps.
         A descent direction in the constrained subspace (rhs . dx > 0), so the shared line search
         and stopping tests apply, with the same fixed point as solving the filtered system exactly.
-        Measured on the default drop at dt = 1/30 s (docs/implicit.md): about as many outer
+        Measured on the default drop at dt = 1/30 s (docs/benchmarks/IMPLICIT.md): about as many outer
         iterations as solving the filtered system to cg_tol by PCG, at a third of the factor
         solves (1.8-2.9x faster), but the landing steps that reach the iteration cap end at larger
         residuals."""
@@ -249,7 +249,7 @@ class FastMassSpring(ImplicitIntegrator):
     # pairs s = x_{k+1} - x_k, y = grad_{k+1} - grad_k (filtered: rhs_k - rhs_{k+1}) are kept only
     # while nothing is held and the objective stays the same: a held particle, a friction refreeze
     # or a new step drops them. (Pairs kept under contact, with four initial inverse Hessians, made
-    # the drop's landing steps slower, not faster: docs/implicit.md, "Measured results".) A
+    # the drop's landing steps slower, not faster: docs/benchmarks/IMPLICIT.md, "Tried, not kept".) A
     # direction that is not a descent direction drops them too and takes the global step alone
     # (counted: lbfgs_restarts).
     @ti.func
