@@ -1,5 +1,6 @@
 """``fit``: find spring stiffness, damping, restitution, friction, gravity or mass that reproduce a
-recorded motion (a ``run --states`` file or a CSV of marker tracks), by Levenberg-Marquardt on forward-mode derivatives
+recorded motion (a ``run --states`` file or a CSV of marker tracks, named by particle index or by
+a point on the rest shape), by Levenberg-Marquardt on forward-mode derivatives
 (``sim/tangent.py``: one tangent-linear pass gives the run and its derivatives for every parameter)."""
 from __future__ import annotations
 
@@ -23,9 +24,10 @@ def add_parser(sub):
                    help="the motion to match: a .npz written by `run --states`, or a .csv of marker tracks, one "
                         "row per marker and time, with 5 columns time [s], particle index, x, y, z [m], or 7 "
                         "columns time [s], rx, ry, rz, x, y, z [m]: a marker named by its point on the body's rest "
-                        "shape (world frame, the lattice without initial_stretch turned by the body's rotation "
-                        "about its center), tracked as the trilinear interpolation of its lattice cell's 8 "
-                        "particles; one form per file, a header line allowed, every time lists the same markers")
+                        "shape in the world frame (rest = center + R p: the body's lattice without "
+                        "initial_stretch, turned by its rotation and placed at its center, as at t = 0), tracked "
+                        "as the trilinear interpolation of its lattice cell's 8 particles; one form per file, a "
+                        "header line allowed, every time lists the same markers")
     p.add_argument("--params", required=True,
                    help="comma-separated parameters to fit: k_stretch, k_shear, k_bend [N/m], kd_stretch, kd_shear, "
                         "kd_bend [N s/m], restitution, friction, gravity [m/s^2], mass [kg], velocity_x, velocity_y, "
