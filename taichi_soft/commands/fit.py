@@ -35,7 +35,8 @@ def add_parser(sub):
     p.add_argument("--window", help="T0:T1, the target's frames from T0 to T1 [s] (default: all)")
     p.add_argument("--max-iters", type=int, default=30, help="Levenberg-Marquardt iterations at most (default: 30)")
     p.add_argument("--result", help="write the JSON result here (default: stdout)")
-    p.add_argument("--plot", help="write a PNG of the loss history and of target against fitted motion here")
+    p.add_argument("--plot", help="write a PNG here: the loss history, the RMS distance from the target per frame "
+                                  "(start and fitted), the most-moving coordinate and marker-pair distance")
     p.set_defaults(func=cmd_fit)
 
 
@@ -205,23 +206,24 @@ def cmd_fit(args) -> int:
 
 
 def _plot(path, out, t, target, fitted, started):
-    """Three panels: the loss history; the RMS distance [m] of the markers (or particles) from the
-    target per frame, at the start and fitted; and the track of the one coordinate that moves most
-    in the target (of one marker), target against start and fitted."""
+    """Four panels: the loss history; the RMS distance [m] of the markers (or particles) from the
+    target per frame, at the start and fitted; the track of the one coordinate of one marker that
+    moves most in the target; and the distance between the two markers whose distance varies most
+    in the target (rotation and translation leave it alone: it shows the body's deformation, which
+    is what the material sets). The last two: target against start and fitted."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    fig, (a, b, c) = plt.subplots(1, 3, figsize=(15, 4))
+    fig, ((a, b), (c, d)) = plt.subplots(2, 2, figsize=(11, 8))
     a.semilogy(out["loss_history"], "o-")
     a.set_xlabel("iteration")
     a.set_ylabel("loss [m^2]")
-    tiny = 1e-300  # a distance of exactly 0 on a log axis
     for x, style, label in ((started, "b:", "start"), (fitted, "r-", "fitted")):
         rms = np.sqrt(np.mean(np.sum((x - target) ** 2, axis=2), axis=1))
-        b.semilogy(t, np.maximum(rms, tiny), style, label=label)
+        b.semilogy(t, np.where(rms > 0, rms, np.nan), style, label=label)  # a frame matched exactly: no point
     b.set_xlabel("t [s]")
     b.set_ylabel("RMS distance from the target [m]")
     b.legend()
@@ -233,6 +235,18 @@ def _plot(path, out, t, target, fitted, started):
     c.set_xlabel("t [s]")
     c.set_ylabel(f"marker {m}: {'xyz'[axis]} [m]")
     c.legend()
+    some = np.unique(np.linspace(0, target.shape[1] - 1, min(target.shape[1], 16)).astype(int))  # pairs of <= 16
+    if len(some) > 1:
+        def distances(x):
+            return np.linalg.norm(x[:, some, None] - x[:, None, some], axis=3)
+
+        dt_ = distances(target)
+        i, j = np.unravel_index(int(np.argmax(dt_.max(axis=0) - dt_.min(axis=0))), dt_.shape[1:])
+        for x, style, label in ((target, "k-", "target"), (started, "b:", "start"), (fitted, "r--", "fitted")):
+            d.plot(t, distances(x)[:, i, j], style, label=label)
+        d.set_ylabel(f"distance, markers {some[i]} and {some[j]} [m]")
+        d.legend()
+    d.set_xlabel("t [s]")
     fig.tight_layout()
     with open(path, "wb") as f:
         fig.savefig(f, format="png")
