@@ -223,3 +223,115 @@ def test_fit_command_refuses_bad_marker_csv(cli, tmp_path):
         assert p.returncode == 2, (text, p.stderr)
         lines = p.stderr.strip().splitlines()
         assert len(lines) == 1 and words in lines[0], (text, p.stderr)
+
+
+def rest_shape(spec):
+    """World positions [m] of a cube body's rest lattice, [n^3, 3]: center + R p (builder.py without
+    the initial stretch), made here from the lattice and rotation, not from the code under test."""
+    from taichi_soft.sim.lattice import lattice_points, rotation_matrix
+
+    rot = rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
+    return lattice_points(spec.n, spec.size) @ rot.T + np.asarray(spec.center)
+
+
+def test_rest_point_weights_reproduce_the_rest_shape():
+    # Trilinear interpolation reproduces affine maps: the weights applied to the rest lattice give
+    # back the rest point itself; a point on a particle is that particle alone.
+    from taichi_soft.sim.bodies import BodySpec
+
+    spec = BodySpec(n=4, size=1.5, center=(0.3, 2.0, -1.0), rotation_axis=(1.0, 2.0, 0.5), rotation_degrees=35.0)
+    rest = rest_shape(spec)
+    rng = np.random.default_rng(1)
+    corners = [(i * 4 + j) * 4 + k for i in (0, 3) for j in (0, 3) for k in (0, 3)]
+    inside = rng.dirichlet(np.ones(8), 20) @ rest[corners]  # points of the body's convex hull
+    points = np.vstack([rest[[0, 5, 63]], inside])
+    particles, weights = gradients.rest_point_markers(spec, points)
+    assert np.abs((weights[:, :, None] * rest[particles]).sum(axis=1) - points).max() <= 1e-12
+    assert np.abs(weights.sum(axis=1) - 1).max() <= 1e-12 and weights.min() >= 0
+    for m, index in enumerate([0, 5, 63]):
+        assert weights[m].max() == 1.0 and particles[m][np.argmax(weights[m])] == index
+    outside = rest[63] + 0.01 * (rest[63] - rest.mean(axis=0))
+    try:
+        gradients.rest_point_markers(spec, outside[None])
+    except ValueError as e:
+        assert "outside" in str(e)
+    else:
+        raise AssertionError("a point outside the lattice was accepted")
+
+
+def test_fit_recovers_stiffness_and_damping_from_eight_rest_points():
+    # The engine's run (rotated, started stretched) sampled at 8 points inside the cells, by an
+    # independent trilinear interpolation (scipy) in the body's frame.
+    from scipy.interpolate import RegularGridInterpolator
+
+    from taichi_soft.sim.lattice import rotation_matrix
+
+    sim = make(terrain=False)
+    spec = sim.model.bodies[0].spec
+    res = sim.run(1.0, 30, record=True)
+    steps = frame_steps(res.steps, 30, DT)
+    axis = np.linspace(-spec.size / 2, spec.size / 2, spec.n)
+    local = np.array([[sx * 0.37, sy * 0.21, sz * 0.44] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    local[0] = (0.1, -0.45, 0.05)  # one in a central cell, one near a face
+    rot = rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
+    points = local @ rot.T + np.asarray(spec.center)
+    target = np.stack([RegularGridInterpolator((axis, axis, axis), f[1].reshape(spec.n, spec.n, spec.n, 3))(local)
+                       for f in res.frames])
+    particles, weights = gradients.rest_point_markers(spec, points)
+    problem = tangent.TangentProblem(sim)
+    truth = problem.values()
+    names = ["k_stretch", "kd_stretch"]
+    start = dict(truth, k_stretch=2 * truth["k_stretch"], kd_stretch=0.5 * truth["kd_stretch"])
+    out = gradients.fit(problem, target, steps, names, start=start, max_iters=40, particles=particles,
+                        weights=weights)
+    for p in names:
+        assert abs(out["values"][p] / truth[p] - 1) <= 0.01, (p, out["values"][p], truth[p])
+
+
+ROTATED = [*FREE, "--set", "body.0.rotation.degrees=30"]
+
+
+def marker_csv(path, data, columns):
+    """A marker CSV of a `run --states` file: ``columns`` maps a particle to its identifying columns."""
+    lines = [",".join([repr(float(t)), *columns(i)] + [repr(float(c)) for c in x[i]])
+             for t, x in zip(data["t"], data["x"]) for i in [0, 2, 6, 8, 18, 20, 24, 26]]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_rest_point_on_a_particle_gives_its_index_form_loss(cli, tmp_path):
+    import json
+
+    from taichi_soft.sim.bodies import BodySpec
+
+    target = tmp_path / "t.npz"
+    assert cli("run", *ROTATED, "--states", str(target)).returncode == 0
+    data = np.load(target)
+    # free_float's body: n = 3 (set), size 2, centre 0, turned 30 degrees about (1, 0, 1); started
+    # stretched, so its t = 0 positions are not its rest points
+    rest = rest_shape(BodySpec(n=3, size=2.0, center=(0.0, 0.0, 0.0), rotation_degrees=30.0))
+    assert np.abs(rest - data["x"][0]).max() > 0.05
+    losses = []
+    for name, columns in (("index", lambda i: [str(i)]), ("rest", lambda i: [repr(float(c)) for c in rest[i]])):
+        csv = marker_csv(tmp_path / f"{name}.csv", data, columns)
+        result = tmp_path / f"{name}.json"
+        p = cli("fit", *ROTATED, "--set", "body.0.stretch.k=4000", "--target", str(csv), "--params", "k_stretch",
+                "--max-iters", "1", "--result", str(result))
+        assert p.returncode == 0, p.stderr
+        losses.append(json.loads(result.read_text())["loss_history"])
+    assert losses[0][0] > 0 and np.allclose(losses[0], losses[1], rtol=1e-12, atol=0), losses
+
+
+def test_fit_command_refuses_bad_rest_point_csv(cli, tmp_path):
+    cases = [("0,1,0,0,0\n0,0,0,0,0,0,0\n", "one form per file"),
+             ("0,0,0,0,1,1,1\n0,0.5,0,0,1,1,1\n0.001,0,0,0,1,1,1\n", "same rest points"),
+             ("0,0,0,0,1,1,1\n0,0,0,0,2,2,2\n", "second time"),
+             ("0,0,0,0,1,1,1\n0,0,0,3,1,1,1\n", "outside"),
+             ("0,0,0,0,1,1,1,1\n", "not 5 or 7")]
+    for k, (text, words) in enumerate(cases):
+        path = tmp_path / f"bad{k}.csv"
+        path.write_text(text)
+        p = cli("fit", *ROTATED, "--target", str(path), "--params", "k_stretch")
+        assert p.returncode == 2, (text, p.stderr)
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and words in lines[0], (text, p.stderr)

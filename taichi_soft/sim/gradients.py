@@ -189,10 +189,13 @@ POSITIVE_FLOOR = 1e-9  # a stiffness, damping, mass or gravity is kept at least 
 
 
 def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: list[str], start: dict | None = None,
-        max_iters: int = 30, tol: float = 1e-12, progress=None, particles=None, step_tol: float = 1e-7) -> dict:
+        max_iters: int = 30, tol: float = 1e-12, progress=None, particles=None, step_tol: float = 1e-7,
+        weights=None) -> dict:
     """Levenberg-Marquardt with bounds on ``params`` so that the positions at ``frame_steps``
     match ``target`` [frames, particles, 3] (with ``particles``, a list of particle indices, the
-    target holds those particles only: marker tracks). It stops when the loss falls by less than
+    target holds those particles only: marker tracks; with ``weights`` too, ``particles`` [markers, K]
+    and ``weights`` [markers, K] make each marker a fixed combination of K particles, as
+    ``rest_point_markers`` gives them: see ``observe``). It stops when the loss falls by less than
     ``tol`` of itself in an iteration, or no parameter moves by more than ``step_tol`` of its start
     (a kink of a contact's loss can hold it there for many tiny steps). Loss: mean over frames and particles of the squared
     distance [m^2]. Each iteration takes one Jacobian (``problem.jacobian``: one pass per parameter
@@ -202,12 +205,13 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
     scale = {p: abs(values[p]) if values[p] != 0 else 1.0 for p in params}
     count = target[..., 0].size
     runs, grads = 0, 0
-    sel = slice(None) if particles is None else np.asarray(particles, dtype=np.int64)
+    def sel(x):
+        return observe(x, particles, weights)
 
     def residual(vals):
         nonlocal runs
         runs += 1
-        return ((problem.trajectory(vals, frame_steps)[:, sel] - target) / np.sqrt(count)).ravel()
+        return ((sel(problem.trajectory(vals, frame_steps)) - target) / np.sqrt(count)).ravel()
 
     def clip(name, value):
         lo, hi = BOUNDS.get(name, (POSITIVE_FLOOR * scale[name], np.inf))
@@ -221,8 +225,8 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
     for it in range(max_iters):
         x_and = problem.jacobian(values, params, frame_steps)
         grads += 1
-        jac = np.stack([x_and[1][p][:, sel].ravel() / np.sqrt(count) * scale[p] for p in params], axis=1)
-        r = ((x_and[0][:, sel] - target) / np.sqrt(count)).ravel()
+        jac = np.stack([sel(x_and[1][p]).ravel() / np.sqrt(count) * scale[p] for p in params], axis=1)
+        r = ((sel(x_and[0]) - target) / np.sqrt(count)).ravel()
         jtj, jtr = jac.T @ jac, jac.T @ r
         improved = False
         moved = 0.0
@@ -250,8 +254,8 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
     # Gauss-Newton uncertainty at the result: sigma^2 (J^T J)^-1, sigma^2 from the residual
     x_and = problem.jacobian(values, params, frame_steps)
     grads += 1
-    jac = np.stack([x_and[1][p][:, sel].ravel() / np.sqrt(count) for p in params], axis=1)
-    r = ((x_and[0][:, sel] - target) / np.sqrt(count)).ravel()
+    jac = np.stack([sel(x_and[1][p]).ravel() / np.sqrt(count) for p in params], axis=1)
+    r = ((sel(x_and[0]) - target) / np.sqrt(count)).ravel()
     dof = max(r.size - len(params), 1)
     sigma2 = float(r @ r) * count / dof
     try:
@@ -262,3 +266,62 @@ def fit(problem: Problem, target: np.ndarray, frame_steps: list[int], params: li
     return {"values": {p: values[p] for p in params}, "uncertainty": err, "loss_history": history,
             "loss": float(r @ r), "gradient_evaluations": grads, "forward_runs": runs,
             "gradient": {p: float(2 * (jac[:, i] @ r)) for i, p in enumerate(params)}}
+
+
+def observe(x: np.ndarray, particles=None, weights=None) -> np.ndarray:
+    """Marker positions [frames, markers, 3] from particle positions x [frames, particles, 3] [m]
+    (or their derivatives with respect to a parameter: the map is linear, so the same combination
+    of the particles' tangent columns is the markers' Jacobian). No ``particles``: every particle;
+    ``particles`` a list of indices: those; with ``weights`` [markers, K], ``particles`` [markers, K]
+    and marker m at sum_k weights[m, k] x[particles[m, k]]."""
+    if particles is None:
+        return x
+    idx = np.asarray(particles, dtype=np.int64)
+    if weights is None:
+        return x[:, idx]
+    return np.einsum("fmkc,mk->fmc", x[:, idx], np.asarray(weights, dtype=np.float64))
+
+
+SNAP = 1e-9  # lattice coordinates [cells] this close to a whole number are taken as on the lattice plane
+
+
+def rest_point_markers(spec, points, first: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Markers on a cube body given by points on its rest shape: (particles [M, 8], weights [M, 8]),
+    each marker the trilinear interpolation of the 8 lattice particles of the cell holding it.
+
+    ``points`` [M, 3] [m] are in the scene's world frame on the body's rest shape as the scene
+    places it at t = 0: the lattice of edge ``spec.size`` without ``initial_stretch``, turned by the
+    body's rotation and centred on ``spec.center`` (rest = center + R p, p in [-size/2, size/2]^3
+    in the body's frame). A point within 1e-9 of a cell of a lattice plane is put on it, so a point
+    on a particle is that particle alone (weight 1). ``first``: the body's first particle index.
+    ``ValueError`` (one line) for a point outside the lattice or a body that is not a cube."""
+    from .lattice import rotation_matrix
+
+    if spec.shape != "cube":
+        raise ValueError(f"rest-point markers cover cube bodies; this body is a {spec.shape!r} "
+                         "(give particle indices)")
+    n, size = int(spec.n), float(spec.size)
+    if n < 2:
+        raise ValueError("rest-point markers need a lattice of at least 2 points per side")
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    rot = rotation_matrix(spec.rotation_axis, spec.rotation_degrees)
+    local = (points - np.asarray(spec.center, dtype=np.float64)) @ rot  # R^T (r - c), row-wise
+    u = (local + 0.5 * size) / (size / (n - 1))  # lattice coordinates [cells]
+    near = np.rint(u)
+    u = np.where(np.abs(u - near) <= SNAP, near, u)
+    outside = np.any((u < 0) | (u > n - 1), axis=1)
+    if outside.any():
+        m = int(np.argmax(outside))
+        shown = ", ".join(f"{c:g}" for c in points[m])
+        body = ", ".join(f"{c:g}" for c in local[m])
+        raise ValueError(f"rest point ({shown}) m is outside the body's rest shape (at ({body}) m in the "
+                         f"body's frame, whose lattice spans -{size / 2:g} to {size / 2:g} m on each axis)")
+    base = np.minimum(np.floor(u), n - 2).astype(np.int64)
+    f = u - base
+    particles = np.empty((len(points), 8), dtype=np.int64)
+    weights = np.empty((len(points), 8))
+    for c, (a, b, e) in enumerate(np.ndindex(2, 2, 2)):
+        corner = base + np.array([a, b, e])
+        particles[:, c] = first + (corner[:, 0] * n + corner[:, 1]) * n + corner[:, 2]
+        weights[:, c] = np.prod(np.where(np.array([a, b, e], dtype=bool), f, 1.0 - f), axis=1)
+    return particles, weights
