@@ -9,9 +9,11 @@ changed at run time (the demo's sliders) acts on the next step, with nothing to 
 
 So the explicit methods keep no per-spring or per-slot array with this pass (``forces =
 "stencil"``): the model never stores its springs (``Model.ensure_springs`` is not called) and the
-memory estimate counts none (``memory.estimate``). A point outside the lattice is replaced by the
-particle itself: d = 0 gives exactly zero force (``forces.spring_force``, no NaN), so the loop over
-the 32 directions has a constant trip count and no branch, like the gather's padded rows.
+memory estimate counts none (``memory.estimate``). A particle at least ``INTERIOR_MARGIN`` points
+from every face of its lattice has all 32 neighbours: its loop reads them with no test. Near a face,
+a point outside the lattice is replaced by the particle itself: d = 0 gives exactly zero force
+(``forces.spring_force``, no NaN), so that loop too has a constant trip count and no branch, like
+the gather's padded rows.
 
 Directions run, per offset in spring order, -o then +o: the order of the gather's rows (rows.py:
 a particle's springs by increasing id, and within one offset the spring that ends at it has the
@@ -34,6 +36,8 @@ GATHERING = ("gather", "stencil")
 DIRECTIONS = tuple((kind, tuple(sign * o for o in off)) for kind, off in SPRING_OFFSETS for sign in (-1, 1))
 N_DIRECTIONS = len(DIRECTIONS)
 NAME = "stencil"
+# The largest component of any lattice offset (the bend springs'): the interior fast path's margin.
+INTERIOR_MARGIN = max(abs(c) for _, off in SPRING_OFFSETS for c in off)
 
 
 def check_lattice(lattice: bool):
@@ -94,20 +98,33 @@ class LatticeStencil:
         return b, ti.Vector([r // (n * n), (r // n) % n, r % n]), n
 
     @ti.func
+    def _term(self, x: ti.template(), v: ti.template(), xi, vi, i, j, b, q):
+        """Spring + damper force [N] on particle i from direction q of body b, neighbour j."""
+        m = self.model
+        e = b * N_DIRECTIONS + q
+        g = spring_group(b, self.kind[q])
+        d = xi - x[j]
+        return spring_force(d, vi - v[j], d.norm(), self.rest[e], m.group_k[g], m.group_kd[g])
+
+    @ti.func
     def force(self, x: ti.template(), v: ti.template(), i):
         """Sum of spring and damper forces [N] on particle i at state (x, v)."""
-        m = self.model
         b, c, n = self.locate(i)
         xi, vi = x[i], v[i]
         f = ti.Vector.zero(float, 3)
-        for q in range(N_DIRECTIONS):
-            t = c + self.offset[q]
-            inside = (ti.min(t[0], t[1], t[2]) >= 0) & (ti.max(t[0], t[1], t[2]) < n)
-            e = b * N_DIRECTIONS + q
-            j = i + ti.select(inside, self.step[e], 0)  # outside: the particle itself, zero force
-            g = spring_group(b, self.kind[q])
-            d = xi - x[j]
-            f += spring_force(d, vi - v[j], d.norm(), self.rest[e], m.group_k[g], m.group_kd[g])
+        # Every offset's components are at most INTERIOR_MARGIN in size: a particle that far from
+        # every face has all 32 neighbours, so its loop tests none of them (most of a big body's
+        # particles); the others take the checked loop. Both sum in direction order.
+        if (ti.min(c[0], c[1], c[2]) >= INTERIOR_MARGIN) & (ti.max(c[0], c[1], c[2]) < n - INTERIOR_MARGIN):
+            for q in range(N_DIRECTIONS):
+                f += self._term(x, v, xi, vi, i, i + self.step[b * N_DIRECTIONS + q], b, q)
+        else:
+            for q in range(N_DIRECTIONS):
+                t = c + self.offset[q]
+                inside = (ti.min(t[0], t[1], t[2]) >= 0) & (ti.max(t[0], t[1], t[2]) < n)
+                # outside: the particle itself, d = 0 and exactly zero force
+                j = i + ti.select(inside, self.step[b * N_DIRECTIONS + q], 0)
+                f += self._term(x, v, xi, vi, i, j, b, q)
         return f
 
     @ti.func
