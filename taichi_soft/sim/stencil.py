@@ -17,14 +17,18 @@ the gather's padded rows.
 
 Directions run, per offset in spring order, -o then +o: the order of the gather's rows (rows.py:
 a particle's springs by increasing id, and within one offset the spring that ends at it has the
-lower id), so the two passes sum a particle's forces in the same order. Mesh bodies (clipped
-lattices) are not supported: ``resolve`` refuses the choice for them (``check_lattice``).
+lower id), so the two passes sum a particle's forces in the same order.
+
+A mesh body is a clipped lattice (``meshbody``: its kept points numbered in C order, its springs
+the stencil's between kept points, in the same order). Index arithmetic then gives the lattice
+point, and a presence mask (``LatticeStencil.grid``: each point's particle or -1) the particle:
+4 bytes per particle and per lattice point, no per-spring array. A scene with a mesh body reads
+the mask for every body (one compiled pass); the interior fast path is the cubes' alone.
 """
 
 import numpy as np
 import taichi as ti
 
-from ..errors import UserError
 from .forces import ForceEvaluator, spring_force
 from .lattice import SPRING_OFFSETS
 from .spring_codes import spring_group
@@ -40,45 +44,96 @@ NAME = "stencil"
 INTERIOR_MARGIN = max(abs(c) for _, off in SPRING_OFFSETS for c in off)
 
 
-def check_lattice(lattice: bool):
-    """Refuse (``UserError``, one line) the stencil pass for a scene with a mesh body."""
-    if not lattice:
-        raise UserError("solver.forces = stencil: only cube bodies are supported (a mesh body's clipped "
-                        "lattice is not); use gather or scatter")
+def lattice_dims(info) -> tuple[int, int, int]:
+    """Lattice points per axis of a body (``bodies.BodyInfo``): n^3 for a cube, its grid's for a mesh body."""
+    return tuple(int(d) for d in info.mesh.grid.shape) if info.mesh is not None else (info.spec.n,) * 3
+
+
+def lattice_points(dims_of_bodies) -> int:
+    """Lattice points of the bodies whose points per axis are given (what the presence mask holds)."""
+    return sum(a * b * c for a, b, c in dims_of_bodies)
+
+
+def mask_ints(particles: int, points: int) -> int:
+    """i32 entries of the presence mask (a scene with a mesh body; none when every body is a cube):
+    each particle's lattice point and each lattice point's particle or -1."""
+    return particles + points
 
 
 @ti.data_oriented
 class LatticeStencil:
-    """A model's bodies as lattices, for index arithmetic: per body its first particle, n, spacing
-    [m]; per body and direction the particle-index step and the rest length [m]. O(bodies) fields."""
+    """A model's bodies as lattices, for index arithmetic: per body its first particle, points per
+    axis, spacing [m]; per body and direction the lattice-point step and the rest length [m].
+    O(bodies) fields when every body is a cube; with a mesh body (a clipped lattice) also the
+    presence mask (``mask_ints``): each particle's point in its body's lattice and each point's
+    particle, -1 where the mesh clipped it (every body then reads it, cubes included)."""
 
     def __init__(self, model):
-        check_lattice(model._lattice)
         self.model = model
+        self.masked = not model._lattice
         nb = max(len(model.bodies), 1)
         ends = np.array([info.particles.stop for info in model.bodies] or [0], np.int32)
         starts = np.array([info.particles.start for info in model.bodies] or [0], np.int32)
-        ns = np.array([info.spec.n for info in model.bodies] or [1], np.int32)
+        dims = np.array([lattice_dims(info) for info in model.bodies] or [(1, 1, 1)], np.int32)
         steps = np.zeros((nb, N_DIRECTIONS), np.int32)
-        for b, n in enumerate(ns):
+        for b, (_, ny, nz) in enumerate(dims):
             for q, (_, o) in enumerate(DIRECTIONS):
-                steps[b, q] = (o[0] * int(n) + o[1]) * int(n) + o[2]
+                steps[b, q] = (o[0] * int(ny) + o[1]) * int(nz) + o[2]
         self.n_bodies = len(model.bodies)
         self.body_end = ti.field(ti.i32, nb)
         self.body_start = ti.field(ti.i32, nb)
-        self.body_n = ti.field(ti.i32, nb)
+        self.body_dims = ti.Vector.field(3, ti.i32, nb)
         self.step = ti.field(ti.i32, nb * N_DIRECTIONS)
         self.rest = ti.field(float, nb * N_DIRECTIONS)
         self.offset = ti.Vector.field(3, ti.i32, N_DIRECTIONS)
         self.kind = ti.field(ti.i32, N_DIRECTIONS)
+        self.point = self.grid = self.grid_start = None
+        if self.masked:
+            self._allocate_mask(model, dims)
         self.body_end.from_numpy(ends)
         self.body_start.from_numpy(starts)
-        self.body_n.from_numpy(ns)
+        self.body_dims.from_numpy(dims)
         self.step.from_numpy(steps.ravel())
         self.offset.from_numpy(np.array([o for _, o in DIRECTIONS], np.int32))
         self.kind.from_numpy(np.array([k for k, _ in DIRECTIONS], np.int32))
-        spacing = np.array([info.spec.size / (info.spec.n - 1) for info in model.bodies] or [1.0])
+        if self.masked:
+            self._fill_mask(model)
+        spacing = np.array([info.mesh.h if info.mesh is not None else info.spec.size / (info.spec.n - 1)
+                            for info in model.bodies] or [1.0])
         self._fill_rest(spacing.astype(model.real))
+        meshes = [b for b, info in enumerate(model.bodies) if info.mesh is not None]
+        if meshes:
+            # A mesh body's springs carry rest lengths rounded on the host (meshbody: float64, then
+            # the run's precision): its directions take the same values, so the passes agree exactly.
+            rest = self.rest.to_numpy().reshape(nb, N_DIRECTIONS)
+            lengths = np.sqrt(np.array([np.dot(o, o) for _, o in DIRECTIONS], np.float64))
+            for b in meshes:
+                rest[b] = (model.bodies[b].mesh.h * lengths).astype(model.real)
+            self.rest.from_numpy(rest.ravel())
+
+    def _allocate_mask(self, model, dims):
+        self.grid_start = ti.field(ti.i32, len(dims))
+        self.point = ti.field(ti.i32, max(model.n_particles, 1))
+        self.grid = ti.field(ti.i32, max(lattice_points(dims), 1))
+
+    def _fill_mask(self, model):
+        points, grid, first = [], [], []
+        at = 0
+        for info in model.bodies:
+            p0 = info.particles.start
+            if info.mesh is None:
+                local = np.arange(info.spec.n ** 3, dtype=np.int32)
+                points.append(local)
+                grid.append(local + np.int32(p0))
+            else:  # particles are numbered in the lattice's C order (meshbody)
+                g = info.mesh.grid.ravel()
+                points.append(np.flatnonzero(g >= 0).astype(np.int32))
+                grid.append(np.where(g >= 0, g + p0, -1).astype(np.int32))
+            first.append(at)
+            at += len(grid[-1])
+        self.grid_start.from_numpy(np.array(first, np.int32))
+        self.point.from_numpy(np.concatenate(points))
+        self.grid.from_numpy(np.concatenate(grid))
 
     @ti.kernel
     def _fill_rest(self, h: ti.types.ndarray(ndim=1)):
@@ -89,17 +144,32 @@ class LatticeStencil:
 
     @ti.func
     def locate(self, i):
-        """(body, lattice point (a, b, c)) of particle i."""
+        """(body, lattice point (a, b, c), points per axis, point's index in its body's lattice) of particle i."""
         b = 0
         while i >= self.body_end[b]:
             b += 1
-        n = self.body_n[b]
+        dims = self.body_dims[b]
         r = i - self.body_start[b]
-        return b, ti.Vector([r // (n * n), (r // n) % n, r % n]), n
+        if ti.static(self.masked):
+            r = self.point[i]
+        return b, ti.Vector([r // (dims[1] * dims[2]), (r // dims[2]) % dims[1], r % dims[2]]), dims, r
 
     @ti.func
-    def _term(self, x: ti.template(), v: ti.template(), xi, vi, i, j, b, q):
-        """Spring + damper force [N] on particle i from direction q of body b, neighbour j."""
+    def neighbour(self, i, b, c, dims, r, q):
+        """(particle at direction q from particle i, whether it exists): i itself where none does."""
+        t = c + self.offset[q]
+        inside = (ti.min(t[0], t[1], t[2]) >= 0) & (t[0] < dims[0]) & (t[1] < dims[1]) & (t[2] < dims[2])
+        step = ti.select(inside, self.step[b * N_DIRECTIONS + q], 0)
+        j = i + step
+        if ti.static(self.masked):
+            j = self.grid[self.grid_start[b] + r + step]  # the point itself when outside: i
+            inside = inside & (j >= 0)
+            j = ti.select(j >= 0, j, i)
+        return j, inside
+
+    @ti.func
+    def _term(self, x: ti.template(), v: ti.template(), xi, vi, j, b, q):
+        """Spring + damper force [N] on a particle at (xi, vi) of body b from neighbour j at direction q."""
         m = self.model
         e = b * N_DIRECTIONS + q
         g = spring_group(b, self.kind[q])
@@ -109,22 +179,31 @@ class LatticeStencil:
     @ti.func
     def force(self, x: ti.template(), v: ti.template(), i):
         """Sum of spring and damper forces [N] on particle i at state (x, v)."""
-        b, c, n = self.locate(i)
+        b, c, dims, r = self.locate(i)
         xi, vi = x[i], v[i]
         f = ti.Vector.zero(float, 3)
-        # Every offset's components are at most INTERIOR_MARGIN in size: a particle that far from
-        # every face has all 32 neighbours, so its loop tests none of them (most of a big body's
-        # particles); the others take the checked loop. Both sum in direction order.
-        if (ti.min(c[0], c[1], c[2]) >= INTERIOR_MARGIN) & (ti.max(c[0], c[1], c[2]) < n - INTERIOR_MARGIN):
+        # Every offset's components are at most INTERIOR_MARGIN in size: a particle of a whole
+        # lattice (a cube) that far from every face has all 32 neighbours, so its loop tests none
+        # of them (most of a big body's particles); the others take the checked loop, where a
+        # missing neighbour is the particle itself (d = 0, exactly zero force). Both sum in
+        # direction order.
+        interior = (ti.min(c[0], c[1], c[2]) >= INTERIOR_MARGIN) & (c[0] < dims[0] - INTERIOR_MARGIN) \
+            & (c[1] < dims[1] - INTERIOR_MARGIN) & (c[2] < dims[2] - INTERIOR_MARGIN)
+        if ti.static(self.masked):
+            f = self._checked_sum(x, v, xi, vi, i, b, c, dims, r)
+        elif interior:
             for q in range(N_DIRECTIONS):
-                f += self._term(x, v, xi, vi, i, i + self.step[b * N_DIRECTIONS + q], b, q)
+                f += self._term(x, v, xi, vi, i + self.step[b * N_DIRECTIONS + q], b, q)
         else:
-            for q in range(N_DIRECTIONS):
-                t = c + self.offset[q]
-                inside = (ti.min(t[0], t[1], t[2]) >= 0) & (ti.max(t[0], t[1], t[2]) < n)
-                # outside: the particle itself, d = 0 and exactly zero force
-                j = i + ti.select(inside, self.step[b * N_DIRECTIONS + q], 0)
-                f += self._term(x, v, xi, vi, i, j, b, q)
+            f = self._checked_sum(x, v, xi, vi, i, b, c, dims, r)
+        return f
+
+    @ti.func
+    def _checked_sum(self, x: ti.template(), v: ti.template(), xi, vi, i, b, c, dims, r):
+        f = ti.Vector.zero(float, 3)
+        for q in range(N_DIRECTIONS):
+            j, _ = self.neighbour(i, b, c, dims, r, q)
+            f += self._term(x, v, xi, vi, j, b, q)
         return f
 
     @ti.func
@@ -133,19 +212,18 @@ class LatticeStencil:
         A top-level loop (``forces.Diagnostics``)."""
         m = self.model
         for i in range(m.n_particles):
-            b, c, n = self.locate(i)
+            b, c, dims, r = self.locate(i)
             for h in range(N_DIRECTIONS // 2):
                 q = 2 * h + 1  # the +offset directions
-                t = c + self.offset[q]
-                if ti.min(t[0], t[1], t[2]) >= 0 and ti.max(t[0], t[1], t[2]) < n:
-                    e = b * N_DIRECTIONS + q
-                    stretch = ti.cast((x[i] - x[i + self.step[e]]).norm() - self.rest[e], ti.f64)
+                j, there = self.neighbour(i, b, c, dims, r, q)
+                if there:
+                    stretch = ti.cast((x[i] - x[j]).norm() - self.rest[b * N_DIRECTIONS + q], ti.f64)
                     kk = ti.cast(m.group_k[spring_group(b, self.kind[q])], ti.f64)
                     out[k] += 0.5 * kk * stretch * stretch
 
 
 def lattice_stencil(model) -> LatticeStencil:
-    """The model's ``LatticeStencil``, built on first use (``UserError`` for a mesh body)."""
+    """The model's ``LatticeStencil``, built on first use."""
     if model.stencil is None:
         model.stencil = LatticeStencil(model)
     return model.stencil

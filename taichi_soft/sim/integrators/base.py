@@ -30,7 +30,7 @@ from ... import runtime
 from ..allocation import allocate, page_aligned_vectors
 from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
-from ..stencil import NAME as STENCIL, StencilForces, check_lattice
+from ..stencil import NAME as STENCIL, StencilForces, lattice_dims, lattice_points, mask_ints
 from ..linalg import SkylineCholesky
 from ..scalar_fields import assign
 from .options import Config, choice
@@ -77,8 +77,6 @@ class ExplicitConfig(IntegratorConfig):
         out = super().resolve(arch, fast_math, counts)
         if out.forces == "auto":
             out = out.but(forces=auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math))
-        if out.forces == STENCIL:
-            check_lattice(counts.lattice)
         return out
 
 
@@ -183,8 +181,10 @@ class Integrator:
         table and ``FIELDS``, and the second state of ping-pong steps. tests/test_memory.py checks
         it against the fields a real integrator allocates."""
         out = Buffers(cls.field_counts())
-        if not cls.implicit and options.forces != STENCIL:  # the stencil allocates O(bodies)
+        if not cls.implicit and options.forces != STENCIL:
             out = out + pass_buffers(options.forces, counts, real_bytes)
+        elif not cls.implicit:  # the stencil: O(bodies), and the presence mask with a mesh body
+            out = out + Buffers(ints=0 if counts.lattice else mask_ints(counts.particles, counts.lattice_points))
         if cls.uses_ping_pong(options):
             out = out + Buffers(PING_PONG)
         return out
@@ -396,6 +396,7 @@ def running_target() -> tuple[str, bool]:
 def model_counts(model) -> Counts:
     """The ``Counts`` of a built model (the envelope read from its springs, only if asked for)."""
     return Counts(model.n_particles, model.n_springs, lattice=model._lattice,
+                  lattice_points=lambda: lattice_points(lattice_dims(info) for info in model.bodies),
                   envelope=lambda: SkylineCholesky.envelope_size(model.n_particles, model.pairs_np))
 
 
