@@ -71,7 +71,7 @@ class ExplicitConfig(IntegratorConfig):
     forces: str = choice("auto", ("auto", "scatter", "per_spring", "gather", "stencil"),
                          "scatter: each spring once, added to both ends; per_spring: each spring once, stored; "
                          "gather: each particle evaluates its springs; stencil: gather with the springs found "
-                         "by lattice arithmetic, none stored (cube bodies); auto: by backend and fast math")
+                         "by lattice arithmetic, none stored; auto: by backend and fast math")
 
     def resolve(self, arch: str, fast_math: bool, counts: Counts) -> "ExplicitConfig":
         out = super().resolve(arch, fast_math, counts)
