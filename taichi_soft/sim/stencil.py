@@ -23,7 +23,8 @@ A mesh body is a clipped lattice (``meshbody``: its kept points numbered in C or
 the stencil's between kept points, in the same order). Index arithmetic then gives the lattice
 point, and a presence mask (``LatticeStencil.grid``: each point's particle or -1) the particle:
 4 bytes per particle and per lattice point, no per-spring array. A scene with a mesh body reads
-the mask for every body (one compiled pass); the interior fast path is the cubes' alone.
+the mask for every body (one compiled pass); a particle whose 32 neighbours all exist is marked
+in its entry (``FULL``) and tests none of them.
 """
 
 import numpy as np
@@ -58,6 +59,23 @@ def mask_ints(particles: int, points: int) -> int:
     """i32 entries of the presence mask (a scene with a mesh body; none when every body is a cube):
     each particle's lattice point and each lattice point's particle or -1."""
     return particles + points
+
+
+# Set in a particle's lattice-point entry (``LatticeStencil.point``) when all 32 of its neighbours
+# exist: its loop then tests none of them. Every lattice point's index is below it.
+FULL = 1 << 30
+
+
+def full_points(exists: np.ndarray) -> np.ndarray:
+    """Per point of a lattice (``exists``: which points hold a particle), whether it and its 32
+    neighbours all exist."""
+    m = INTERIOR_MARGIN
+    padded = np.zeros(tuple(d + 2 * m for d in exists.shape), bool)
+    padded[m:-m, m:-m, m:-m] = exists
+    full = exists.copy()
+    for _, o in DIRECTIONS:
+        full &= padded[tuple(slice(m + c, m + c + d) for c, d in zip(o, exists.shape))]
+    return full
 
 
 @ti.data_oriented
@@ -122,18 +140,21 @@ class LatticeStencil:
         for info in model.bodies:
             p0 = info.particles.start
             if info.mesh is None:
-                local = np.arange(info.spec.n ** 3, dtype=np.int32)
-                points.append(local)
-                grid.append(local + np.int32(p0))
+                exists = np.ones((info.spec.n,) * 3, bool)
+                g = np.arange(exists.size, dtype=np.int64) + p0
             else:  # particles are numbered in the lattice's C order (meshbody)
-                g = info.mesh.grid.ravel()
-                points.append(np.flatnonzero(g >= 0).astype(np.int32))
-                grid.append(np.where(g >= 0, g + p0, -1).astype(np.int32))
+                exists = info.mesh.grid >= 0
+                g = np.where(exists, info.mesh.grid.astype(np.int64) + p0, -1).ravel()
+            kept = np.flatnonzero(exists.ravel())
+            points.append(kept | np.where(full_points(exists).ravel()[kept], FULL, 0))
+            grid.append(g)
             first.append(at)
-            at += len(grid[-1])
+            at += len(g)
+        if at >= FULL:
+            raise ValueError(f"{at} lattice points: the presence mask indexes fewer than {FULL}")
         self.grid_start.from_numpy(np.array(first, np.int32))
-        self.point.from_numpy(np.concatenate(points))
-        self.grid.from_numpy(np.concatenate(grid))
+        self.point.from_numpy(np.concatenate(points).astype(np.int32))
+        self.grid.from_numpy(np.concatenate(grid).astype(np.int32))
 
     @ti.kernel
     def _fill_rest(self, h: ti.types.ndarray(ndim=1)):
@@ -151,7 +172,7 @@ class LatticeStencil:
         dims = self.body_dims[b]
         r = i - self.body_start[b]
         if ti.static(self.masked):
-            r = self.point[i]
+            r = self.point[i] & (FULL - 1)
         return b, ti.Vector([r // (dims[1] * dims[2]), (r // dims[2]) % dims[1], r % dims[2]]), dims, r
 
     @ti.func
@@ -184,13 +205,18 @@ class LatticeStencil:
         f = ti.Vector.zero(float, 3)
         # Every offset's components are at most INTERIOR_MARGIN in size: a particle of a whole
         # lattice (a cube) that far from every face has all 32 neighbours, so its loop tests none
-        # of them (most of a big body's particles); the others take the checked loop, where a
-        # missing neighbour is the particle itself (d = 0, exactly zero force). Both sum in
-        # direction order.
+        # of them (most of a big body's particles); with the presence mask, a particle marked FULL.
+        # The others take the checked loop, where a missing neighbour is the particle itself
+        # (d = 0, exactly zero force). All sum in direction order.
         interior = (ti.min(c[0], c[1], c[2]) >= INTERIOR_MARGIN) & (c[0] < dims[0] - INTERIOR_MARGIN) \
             & (c[1] < dims[1] - INTERIOR_MARGIN) & (c[2] < dims[2] - INTERIOR_MARGIN)
         if ti.static(self.masked):
-            f = self._checked_sum(x, v, xi, vi, i, b, c, dims, r)
+            if self.point[i] >= FULL:  # all 32 neighbours there: no test
+                base = self.grid_start[b] + r
+                for q in range(N_DIRECTIONS):
+                    f += self._term(x, v, xi, vi, self.grid[base + self.step[b * N_DIRECTIONS + q]], b, q)
+            else:
+                f = self._checked_sum(x, v, xi, vi, i, b, c, dims, r)
         elif interior:
             for q in range(N_DIRECTIONS):
                 f += self._term(x, v, xi, vi, i + self.step[b * N_DIRECTIONS + q], b, q)
