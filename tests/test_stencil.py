@@ -245,3 +245,31 @@ def test_vulkan_stencil_matches_the_cpu():
     assert np.abs(gpu - cpu).max() <= 1e-4, np.abs(gpu - cpu).max()
     free_fall = x0 + np.array([0.0, -9.8, 0.0]) * dt * dt * steps * (steps + 1) / 2  # semi-implicit Euler's
     assert np.abs(cpu - free_fall).max() > 1e-2
+
+
+def test_auto_picks_the_stencil_for_parallel_cube_steps_with_fast_math():
+    """forces = auto on a CPU with fast math: the stencil for cube bodies stepped in parallel launches
+    (docs/decisions/auto-picks-the-stencil.md); the gather for serial launches, mesh bodies, velocity
+    Verlet and GPUs; the scatter without fast math."""
+    from taichi_soft.sim.footprint import Counts
+    from taichi_soft.sim.integrators import integrator_class
+
+    big, small = Counts(64000, 10**6, lattice=True), Counts(8000, 10**5, lattice=True)
+    mesh = Counts(64000, 10**6, lattice=False)
+    euler = integrator_class("semi_implicit_euler")
+    assert euler.configure({}, "cpu", True, big).forces == "stencil"
+    assert integrator_class("rk4").configure({}, "cpu", True, big).forces == "stencil"
+    assert euler.configure({"mode": "parallel"}, "cpu", True, small).forces == "stencil"
+    assert euler.configure({}, "cpu", True, small).forces == "gather"
+    assert euler.configure({}, "cpu", True, mesh).forces == "gather"
+    assert integrator_class("velocity_verlet").configure({}, "cpu", True, big).forces == "gather"
+    assert euler.configure({}, "cuda", True, big).forces == "gather"
+    assert euler.configure({}, "cpu", False, big).forces == "scatter"
+
+
+def test_default_run_estimate_stores_no_springs_at_n40():
+    """The default run of the n = 40 cube (CPU, fast math, f64) stores no springs: its fields are
+    the masses, the state and the ping-pong state, 112 bytes per particle."""
+    data = load_scene("plane", ["body.0.n=40"]).data
+    est = memory.estimate(data, None, "f64", "cpu", fast_math=True)
+    assert est["fields"] == est["particles"] * (2 + 6 + 6) * 8

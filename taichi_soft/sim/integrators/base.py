@@ -68,15 +68,18 @@ class IntegratorConfig(Config):
 class ExplicitConfig(IntegratorConfig):
     """The explicit methods' options: launches, and how the force pass sums spring forces."""
 
+    # Whether ``forces = auto`` may pick the stencil (a method whose step reads the stored springs: no).
+    auto_stencil: ClassVar[bool] = True
     forces: str = choice("auto", ("auto", "scatter", "per_spring", "gather", "stencil"),
                          "scatter: each spring once, added to both ends; per_spring: each spring once, stored; "
                          "gather: each particle evaluates its springs; stencil: gather with the springs found "
-                         "by lattice arithmetic, none stored; auto: by backend and fast math")
+                         "by lattice arithmetic, none stored; auto: by backend, fast math, launches and bodies")
 
     def resolve(self, arch: str, fast_math: bool, counts: Counts) -> "ExplicitConfig":
         out = super().resolve(arch, fast_math, counts)
         if out.forces == "auto":
-            out = out.but(forces=auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math))
+            out = out.but(forces=auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math,
+                                               stencil=self.auto_stencil and counts.lattice and out.mode == "parallel"))
         return out
 
 
