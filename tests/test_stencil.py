@@ -12,7 +12,7 @@ import pytest
 
 from taichi_soft import runtime
 from taichi_soft.errors import UserError
-from taichi_soft.sim import memory, meshbody, stencil
+from taichi_soft.sim import memory, stencil
 from taichi_soft.sim.footprint import MODEL_SPRINGS
 from taichi_soft.sim.integrators import REGISTRY
 from taichi_soft.sim.scene import load_scene
@@ -155,9 +155,6 @@ def test_mesh_bodies_same_answers_as_the_gather(make_sim, scene, sets, steps):
     out = {}
     for forces in ("stencil", "gather"):
         sim = make_sim(scene, sets, integrator="semi_implicit_euler", dt=1e-3, options={"forces": forces})
-        if forces == "stencil":
-            point = sim.model.stencil.point.to_numpy()
-            assert 0 < (point >= stencil.FULL).sum() < len(point)
         assert sim.advance(steps) == steps
         assert sim.model.springs_stored() == (forces != "stencil")
         out[forces] = sim.state.numpy()[0], sim.diagnostics.compute(sim.state)["spring_energy"]
@@ -166,25 +163,13 @@ def test_mesh_bodies_same_answers_as_the_gather(make_sim, scene, sets, steps):
     assert np.abs(out["stencil"][0] - sim.model.x0_np).max() > 0.04  # free fall alone: 0.049 m in 0.1 s
 
 
-def test_full_points_have_every_neighbour():
-    """``full_points`` against a direct count of each point's 32 neighbours, on the blob's lattice."""
-    exists = meshbody.mesh_lattice(ROOT / "scenes" / "meshes" / "blob.obj", 12, size=3.5).grid >= 0
-    want = np.zeros_like(exists)
-    dims = exists.shape
-    for p in zip(*np.nonzero(exists)):
-        there = [all(0 <= p[a] + o[a] < dims[a] for a in range(3)) and exists[tuple(p[a] + o[a] for a in range(3))]
-                 for _, o in stencil.DIRECTIONS]
-        want[p] = all(there)
-    assert want.any() and np.array_equal(stencil.full_points(exists), want)
-
-
 def test_mesh_memory_estimate_counts_the_mask(make_sim):
     """A mesh body's stencil run allocates what the estimate says: the model's masses, the state, the
-    ping-pong state and the presence mask (a particle's lattice point, a point's particle: i32 each),
-    no spring; below the gather's estimate."""
+    ping-pong state and the presence mask (a particle's lattice point, a point's particle of the
+    lattice padded by two points on every side: i32 each), no spring; below the gather's estimate."""
     sim = make_sim("torus", integrator="semi_implicit_euler", options={"forces": "stencil"})
     n_p = sim.model.n_particles
-    points = sim.model.bodies[0].mesh.grid.size
+    points = np.prod(np.array(sim.model.bodies[0].mesh.grid.shape) + 2 * stencil.INTERIOR_MARGIN)
     fields = _fields([sim.model, sim.state, sim.terrain, sim.diagnostics, sim.integrator, sim.model.stencil])
     scaling = sum(_field_bytes(f) for f in fields if f.shape and f.shape[0] >= n_p)
     data = load_scene("torus", ["solver.forces=stencil"]).data

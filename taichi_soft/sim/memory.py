@@ -83,13 +83,14 @@ def counts(scene_data: dict) -> Counts:
     smaller)."""
     from .lattice import envelope_size
     from .rows import lattice_width
+    from .stencil import lattice_points as mask_points
 
     bodies = [int(b["n"]) for b in scene_data["body"]]
     lattice = all(b.get("shape", "cube") != "mesh" for b in scene_data["body"])
     return Counts(*scene_counts(scene_data), lattice=lattice, envelope=lambda: sum(envelope_size(n) for n in bodies),
                   row_width=lambda: max(lattice_width(n) for n in bodies),
-                  lattice_points=lambda: sum(_mesh_lattice(b).grid.size if b.get("shape", "cube") == "mesh"
-                                             else int(b["n"]) ** 3 for b in scene_data["body"]))
+                  lattice_points=lambda: mask_points(_mesh_lattice(b).grid.shape if b.get("shape", "cube") == "mesh"
+                                                     else (int(b["n"]),) * 3 for b in scene_data["body"]))
 
 
 def _surface_host_bytes(scene_data: dict) -> int:

@@ -22,10 +22,12 @@ lower id), so the two passes sum a particle's forces in the same order.
 A mesh body is a clipped lattice (``meshbody``: its kept points numbered in C order, its springs
 the stencil's between kept points, in the same order). Index arithmetic then gives the lattice
 point, and a presence mask (``LatticeStencil.grid``: each point's particle or -1) the particle:
-4 bytes per particle and per lattice point, no per-spring array. A scene with a mesh body reads
-the mask for every body (one compiled pass); a particle whose 32 neighbours all exist is marked
-in its entry (``FULL``) and tests none of them.
+4 bytes per particle and per lattice point (the lattice padded by two empty points on every
+side, so no neighbour needs a bound test), no per-spring array. A scene with a mesh body reads the
+mask for every body (one compiled pass).
 """
+
+import math
 
 import numpy as np
 import taichi as ti
@@ -51,8 +53,9 @@ def lattice_dims(info) -> tuple[int, int, int]:
 
 
 def lattice_points(dims_of_bodies) -> int:
-    """Lattice points of the bodies whose points per axis are given (what the presence mask holds)."""
-    return sum(a * b * c for a, b, c in dims_of_bodies)
+    """Entries of the presence mask for bodies of the given points per axis: each body's lattice
+    with INTERIOR_MARGIN empty points added on every side."""
+    return sum(math.prod(d + 2 * INTERIOR_MARGIN for d in dims) for dims in dims_of_bodies)
 
 
 def mask_ints(particles: int, points: int) -> int:
@@ -61,30 +64,15 @@ def mask_ints(particles: int, points: int) -> int:
     return particles + points
 
 
-# Set in a particle's lattice-point entry (``LatticeStencil.point``) when all 32 of its neighbours
-# exist: its loop then tests none of them. Every lattice point's index is below it.
-FULL = 1 << 30
-
-
-def full_points(exists: np.ndarray) -> np.ndarray:
-    """Per point of a lattice (``exists``: which points hold a particle), whether it and its 32
-    neighbours all exist."""
-    m = INTERIOR_MARGIN
-    padded = np.zeros(tuple(d + 2 * m for d in exists.shape), bool)
-    padded[m:-m, m:-m, m:-m] = exists
-    full = exists.copy()
-    for _, o in DIRECTIONS:
-        full &= padded[tuple(slice(m + c, m + c + d) for c, d in zip(o, exists.shape))]
-    return full
-
-
 @ti.data_oriented
 class LatticeStencil:
     """A model's bodies as lattices, for index arithmetic: per body its first particle, points per
     axis, spacing [m]; per body and direction the lattice-point step and the rest length [m].
     O(bodies) fields when every body is a cube; with a mesh body (a clipped lattice) also the
     presence mask (``mask_ints``): each particle's point in its body's lattice and each point's
-    particle, -1 where the mesh clipped it (every body then reads it, cubes included)."""
+    particle, -1 where the mesh clipped it (every body then reads it, cubes included). The mask's
+    lattices have INTERIOR_MARGIN empty points added on every side, so every particle's 32
+    neighbours are entries of it and the pass reads them with no bound test."""
 
     def __init__(self, model):
         self.model = model
@@ -94,7 +82,7 @@ class LatticeStencil:
         starts = np.array([info.particles.start for info in model.bodies] or [0], np.int32)
         dims = np.array([lattice_dims(info) for info in model.bodies] or [(1, 1, 1)], np.int32)
         steps = np.zeros((nb, N_DIRECTIONS), np.int32)
-        for b, (_, ny, nz) in enumerate(dims):
+        for b, (_, ny, nz) in enumerate(dims + (2 * INTERIOR_MARGIN if self.masked else 0)):
             for q, (_, o) in enumerate(DIRECTIONS):
                 steps[b, q] = (o[0] * int(ny) + o[1]) * int(nz) + o[2]
         self.n_bodies = len(model.bodies)
@@ -136,22 +124,19 @@ class LatticeStencil:
 
     def _fill_mask(self, model):
         points, grid, first = [], [], []
-        at = 0
+        at, m = 0, INTERIOR_MARGIN
         for info in model.bodies:
-            p0 = info.particles.start
             if info.mesh is None:
-                exists = np.ones((info.spec.n,) * 3, bool)
-                g = np.arange(exists.size, dtype=np.int64) + p0
+                local = np.arange(info.spec.n ** 3, dtype=np.int64).reshape((info.spec.n,) * 3)
             else:  # particles are numbered in the lattice's C order (meshbody)
-                exists = info.mesh.grid >= 0
-                g = np.where(exists, info.mesh.grid.astype(np.int64) + p0, -1).ravel()
-            kept = np.flatnonzero(exists.ravel())
-            points.append(kept | np.where(full_points(exists).ravel()[kept], FULL, 0))
+                local = info.mesh.grid.astype(np.int64)
+            padded = np.full(tuple(d + 2 * m for d in local.shape), -1, np.int64)
+            padded[m:-m, m:-m, m:-m] = np.where(local >= 0, local + info.particles.start, -1)
+            g = padded.ravel()
+            points.append(np.flatnonzero(g >= 0))  # C order: the particles' order
             grid.append(g)
             first.append(at)
             at += len(g)
-        if at >= FULL:
-            raise ValueError(f"{at} lattice points: the presence mask indexes fewer than {FULL}")
         self.grid_start.from_numpy(np.array(first, np.int32))
         self.point.from_numpy(np.concatenate(points).astype(np.int32))
         self.grid.from_numpy(np.concatenate(grid).astype(np.int32))
@@ -164,29 +149,43 @@ class LatticeStencil:
             self.rest[e] = ti.cast(h[e // N_DIRECTIONS], float) * ti.sqrt(ti.cast(o.dot(o), float))
 
     @ti.func
-    def locate(self, i):
-        """(body, lattice point (a, b, c), points per axis, point's index in its body's lattice) of particle i."""
+    def body_of(self, i):
         b = 0
         while i >= self.body_end[b]:
             b += 1
-        dims = self.body_dims[b]
-        r = i - self.body_start[b]
-        if ti.static(self.masked):
-            r = self.point[i] & (FULL - 1)
-        return b, ti.Vector([r // (dims[1] * dims[2]), (r // dims[2]) % dims[1], r % dims[2]]), dims, r
+        return b
 
     @ti.func
-    def neighbour(self, i, b, c, dims, r, q):
-        """(particle at direction q from particle i, whether it exists): i itself where none does."""
+    def locate(self, i):
+        """(body, lattice point (a, b, c), points per axis) of particle i of a cube."""
+        b = self.body_of(i)
+        n = self.body_dims[b]
+        r = i - self.body_start[b]
+        return b, ti.Vector([r // (n[1] * n[2]), (r // n[2]) % n[1], r % n[2]]), n
+
+    @ti.func
+    def neighbour(self, i, b, c, dims, q):
+        """(particle at direction q from particle i of a cube at lattice point c, whether it
+        exists): i itself where none does."""
         t = c + self.offset[q]
         inside = (ti.min(t[0], t[1], t[2]) >= 0) & (t[0] < dims[0]) & (t[1] < dims[1]) & (t[2] < dims[2])
-        step = ti.select(inside, self.step[b * N_DIRECTIONS + q], 0)
-        j = i + step
+        return i + ti.select(inside, self.step[b * N_DIRECTIONS + q], 0), inside
+
+    @ti.func
+    def masked_neighbour(self, i, b, q):
+        """(particle at direction q from particle i, whether it exists), from the presence mask: i
+        itself where none does."""
+        j = self.grid[self.grid_start[b] + self.point[i] + self.step[b * N_DIRECTIONS + q]]
+        return ti.select(j >= 0, j, i), j >= 0
+
+    @ti.func
+    def any_neighbour(self, i, b, q):
+        """``masked_neighbour`` with the presence mask, else ``neighbour``."""
         if ti.static(self.masked):
-            j = self.grid[self.grid_start[b] + r + step]  # the point itself when outside: i
-            inside = inside & (j >= 0)
-            j = ti.select(j >= 0, j, i)
-        return j, inside
+            return self.masked_neighbour(i, b, q)
+        else:
+            _, c, n = self.locate(i)
+            return self.neighbour(i, b, c, n, q)
 
     @ti.func
     def _term(self, x: ti.template(), v: ti.template(), xi, vi, j, b, q):
@@ -200,36 +199,28 @@ class LatticeStencil:
     @ti.func
     def force(self, x: ti.template(), v: ti.template(), i):
         """Sum of spring and damper forces [N] on particle i at state (x, v)."""
-        b, c, dims, r = self.locate(i)
         xi, vi = x[i], v[i]
         f = ti.Vector.zero(float, 3)
-        # Every offset's components are at most INTERIOR_MARGIN in size: a particle of a whole
-        # lattice (a cube) that far from every face has all 32 neighbours, so its loop tests none
-        # of them (most of a big body's particles); with the presence mask, a particle marked FULL.
-        # The others take the checked loop, where a missing neighbour is the particle itself
-        # (d = 0, exactly zero force). All sum in direction order.
-        interior = (ti.min(c[0], c[1], c[2]) >= INTERIOR_MARGIN) & (c[0] < dims[0] - INTERIOR_MARGIN) \
-            & (c[1] < dims[1] - INTERIOR_MARGIN) & (c[2] < dims[2] - INTERIOR_MARGIN)
+        # Every direction sums in order; a missing neighbour is the particle itself (d = 0,
+        # exactly zero force), so no loop has a branch.
         if ti.static(self.masked):
-            if self.point[i] >= FULL:  # all 32 neighbours there: no test
-                base = self.grid_start[b] + r
-                for q in range(N_DIRECTIONS):
-                    f += self._term(x, v, xi, vi, self.grid[base + self.step[b * N_DIRECTIONS + q]], b, q)
-            else:
-                f = self._checked_sum(x, v, xi, vi, i, b, c, dims, r)
-        elif interior:
+            b = self.body_of(i)
             for q in range(N_DIRECTIONS):
-                f += self._term(x, v, xi, vi, i + self.step[b * N_DIRECTIONS + q], b, q)
+                j, _ = self.masked_neighbour(i, b, q)
+                f += self._term(x, v, xi, vi, j, b, q)
         else:
-            f = self._checked_sum(x, v, xi, vi, i, b, c, dims, r)
-        return f
-
-    @ti.func
-    def _checked_sum(self, x: ti.template(), v: ti.template(), xi, vi, i, b, c, dims, r):
-        f = ti.Vector.zero(float, 3)
-        for q in range(N_DIRECTIONS):
-            j, _ = self.neighbour(i, b, c, dims, r, q)
-            f += self._term(x, v, xi, vi, j, b, q)
+            b, c, n = self.locate(i)
+            # Every offset's components are at most INTERIOR_MARGIN in size: a particle that far
+            # from every face has all 32 neighbours, so its loop tests none of them (most of a big
+            # body's particles).
+            if (ti.min(c[0], c[1], c[2]) >= INTERIOR_MARGIN) & (c[0] < n[0] - INTERIOR_MARGIN) \
+                    & (c[1] < n[1] - INTERIOR_MARGIN) & (c[2] < n[2] - INTERIOR_MARGIN):
+                for q in range(N_DIRECTIONS):
+                    f += self._term(x, v, xi, vi, i + self.step[b * N_DIRECTIONS + q], b, q)
+            else:
+                for q in range(N_DIRECTIONS):
+                    j, _ = self.neighbour(i, b, c, n, q)
+                    f += self._term(x, v, xi, vi, j, b, q)
         return f
 
     @ti.func
@@ -238,10 +229,10 @@ class LatticeStencil:
         A top-level loop (``forces.Diagnostics``)."""
         m = self.model
         for i in range(m.n_particles):
-            b, c, dims, r = self.locate(i)
+            b = self.body_of(i)
             for h in range(N_DIRECTIONS // 2):
                 q = 2 * h + 1  # the +offset directions
-                j, there = self.neighbour(i, b, c, dims, r, q)
+                j, there = self.any_neighbour(i, b, q)
                 if there:
                     stretch = ti.cast((x[i] - x[j]).norm() - self.rest[b * N_DIRECTIONS + q], ti.f64)
                     kk = ti.cast(m.group_k[spring_group(b, self.kind[q])], ti.f64)
