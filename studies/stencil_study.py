@@ -1,4 +1,4 @@
-"""Stencil force pass against the default (gather with fast math): steps/s and peak memory.
+"""Stencil force pass against the gather's padded rows (both with fast math): steps/s and peak memory.
 
     PYTHONPATH=. .venv/bin/python studies/stencil_study.py speed f64   # one process per precision
     PYTHONPATH=. .venv/bin/python studies/stencil_study.py mesh f64    # the torus (presence mask)
@@ -26,7 +26,7 @@ def speed(precision: str, scene: str = "plane", sizes=((40, 20), (80, 4))):
     out = {}
     for n, steps in sizes:
         cands, sims = {}, {}
-        for forces in ("auto", "stencil"):
+        for forces in ("gather", "stencil"):
             sim = Simulation(load_scene(scene, [f"body.0.n={n}"], integrator_names=names()),
                              integrator="semi_implicit_euler", options={"forces": forces})
             sims[forces] = sim
@@ -43,7 +43,7 @@ def memory():
     import subprocess
     for precision in ("f64", "f32"):
         for n in (40, 60, 80):
-            for forces in ("auto", "stencil"):
+            for forces in ("gather", "stencil"):
                 code = ("import sys; from taichi_soft.peak_run import peak_of_run; "
                         f"print(peak_of_run(['run','--scene','plane','--precision','{precision}','--dt','0.001',"
                         f"'--duration','0.001','--set','body.0.n={n}','--set','solver.forces={forces}'], 'cpu'))")
