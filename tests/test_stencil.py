@@ -232,10 +232,10 @@ def test_vulkan_stencil_matches_the_cpu():
     assert np.abs(cpu - free_fall).max() > 1e-2
 
 
-def test_auto_picks_the_stencil_for_parallel_cube_steps_with_fast_math():
+def test_auto_picks_the_stencil_for_parallel_f64_cube_steps_with_fast_math():
     """forces = auto on a CPU with fast math: the stencil for cube bodies stepped in parallel launches
-    (docs/decisions/auto-picks-the-stencil.md); the gather for serial launches, mesh bodies, velocity
-    Verlet and GPUs; the scatter without fast math."""
+    in f64 (docs/decisions/auto-picks-the-stencil.md); the gather in f32, for serial launches, mesh
+    bodies, velocity Verlet and GPUs; the scatter without fast math."""
     from taichi_soft.sim.footprint import Counts
     from taichi_soft.sim.integrators import integrator_class
 
@@ -247,6 +247,7 @@ def test_auto_picks_the_stencil_for_parallel_cube_steps_with_fast_math():
     assert euler.configure({"mode": "parallel"}, "cpu", True, small).forces == "stencil"
     assert euler.configure({}, "cpu", True, small).forces == "gather"
     assert euler.configure({}, "cpu", True, mesh).forces == "gather"
+    assert euler.configure({}, "cpu", True, Counts(64000, 10**6, lattice=True, real_bytes=4)).forces == "gather"
     assert integrator_class("velocity_verlet").configure({}, "cpu", True, big).forces == "gather"
     assert euler.configure({}, "cuda", True, big).forces == "gather"
     assert euler.configure({}, "cpu", False, big).forces == "scatter"
@@ -258,3 +259,4 @@ def test_default_run_estimate_stores_no_springs_at_n40():
     data = load_scene("plane", ["body.0.n=40"]).data
     est = memory.estimate(data, None, "f64", "cpu", fast_math=True)
     assert est["fields"] == est["particles"] * (2 + 6 + 6) * 8
+    assert memory.estimate(data, None, "f32", "cpu", fast_math=True)["fields"] > est["fields"]  # f32: the gather

@@ -121,8 +121,9 @@ class Counts:
 
     def __init__(self, particles: int, springs: int, envelope: Callable[[], int] | None = None,
                  row_width: Callable[[], int] | None = None, lattice: bool = False,
-                 lattice_points: Callable[[], int] | None = None):
+                 lattice_points: Callable[[], int] | None = None, real_bytes: int = 8):
         self.particles, self.springs = particles, springs
+        self.real_bytes = real_bytes  # the run's float size (f64: 8): forces = auto depends on it
         self.lattice = lattice  # every body a whole lattice (cubes): the stencil needs no presence mask
         self._envelope, self._row_width, self._lattice_points = envelope, row_width, lattice_points
 

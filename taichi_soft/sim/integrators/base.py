@@ -24,6 +24,7 @@ first diverged step index.
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
 import taichi as ti
 
 from ... import runtime
@@ -79,7 +80,8 @@ class ExplicitConfig(IntegratorConfig):
         out = super().resolve(arch, fast_math, counts)
         if out.forces == "auto":
             out = out.but(forces=auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math,
-                                               stencil=self.auto_stencil and counts.lattice and out.mode == "parallel"))
+                                               stencil=self.auto_stencil and counts.lattice and out.mode == "parallel"
+                                               and counts.real_bytes == 8))
         return out
 
 
@@ -396,9 +398,14 @@ def running_target() -> tuple[str, bool]:
     return ("cpu" if cfg.arch in (ti.x64, ti.arm64) else "gpu"), bool(cfg.fast_math)
 
 
+def running_real_bytes() -> int:
+    """Bytes of the running Taichi's default float (f64: 8, f32: 4)."""
+    return 8 if ti.lang.impl.current_cfg().default_fp == ti.f64 else 4
+
+
 def model_counts(model) -> Counts:
     """The ``Counts`` of a built model (the envelope read from its springs, only if asked for)."""
-    return Counts(model.n_particles, model.n_springs, lattice=model._lattice,
+    return Counts(model.n_particles, model.n_springs, lattice=model._lattice, real_bytes=np.dtype(model.real).itemsize,
                   lattice_points=lambda: lattice_points(lattice_dims(info) for info in model.bodies),
                   envelope=lambda: SkylineCholesky.envelope_size(model.n_particles, model.pairs_np))
 
