@@ -1,17 +1,23 @@
 """The stencil force pass (solver.forces = stencil): the same forces as the stored-spring passes,
 no spring stored and none counted by the memory estimate, no NaN from zero-length springs, NaN
-caught under fast math, run-time stiffness, bit-identical repeats, mesh bodies refused."""
+caught under fast math, run-time stiffness, bit-identical repeats, mesh bodies through the presence
+mask, the Vulkan backend."""
+import json
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
 from taichi_soft import runtime
 from taichi_soft.errors import UserError
-from taichi_soft.sim import memory
+from taichi_soft.sim import memory, stencil
 from taichi_soft.sim.footprint import MODEL_SPRINGS
 from taichi_soft.sim.integrators import REGISTRY
 from taichi_soft.sim.scene import load_scene
 
-from conftest import restart_taichi
+from conftest import ROOT, restart_taichi
 from test_memory import _field_bytes, _fields
 
 # velocity_verlet refuses the stencil (its damper corrector reads the stored springs: tested below)
@@ -135,15 +141,43 @@ def test_run_time_stiffness_acts(make_sim):
     assert np.abs(changed.state.numpy()[0] - plain.state.numpy()[0]).max() > 1e-3
 
 
-def test_mesh_bodies_refused_before_any_work():
+# A cube and a mesh body in one scene (the scene's middle body made a torus): the mask path for both.
+MIXED = ["body.0.n=6", "body.2.n=4", 'body.1.shape="mesh"', f'body.1.mesh="{ROOT / "scenes" / "meshes" / "torus.obj"}"',
+         "body.1.n=12"]
+
+
+@pytest.mark.parametrize("scene,sets,steps", [("blob", [], 300), ("three_cubes", MIXED, 100)], ids=["mesh", "cube_and_mesh"])
+def test_mesh_bodies_same_answers_as_the_gather(make_sim, scene, sets, steps):
+    """A mesh body (a clipped lattice, read through the presence mask), alone and beside cubes:
+    0.3 s (0.1 s) of semi-implicit Euler bit-identical to the gather (IEEE arithmetic), no spring
+    stored, the same spring energy (to the f64 sum's rounding), and the bodies moved. Both scenes have
+    particles with all 32 neighbours (the unchecked loop) and particles near a clipped face."""
+    out = {}
+    for forces in ("stencil", "gather"):
+        sim = make_sim(scene, sets, integrator="semi_implicit_euler", dt=1e-3, options={"forces": forces})
+        assert sim.advance(steps) == steps
+        assert sim.model.springs_stored() == (forces != "stencil")
+        out[forces] = sim.state.numpy()[0], sim.diagnostics.compute(sim.state)["spring_energy"]
+    assert np.array_equal(out["stencil"][0], out["gather"][0])
+    assert out["stencil"][1] == pytest.approx(out["gather"][1], rel=1e-9) and out["gather"][1] > 0
+    assert np.abs(out["stencil"][0] - sim.model.x0_np).max() > 0.04  # free fall alone: 0.049 m in 0.1 s
+
+
+def test_mesh_memory_estimate_counts_the_mask(make_sim):
+    """A mesh body's stencil run allocates what the estimate says: the model's masses, the state, the
+    ping-pong state and the presence mask (a particle's lattice point, a point's particle of the
+    lattice padded by two points on every side: i32 each), no spring; below the gather's estimate."""
+    sim = make_sim("torus", integrator="semi_implicit_euler", options={"forces": "stencil"})
+    n_p = sim.model.n_particles
+    points = np.prod(np.array(sim.model.bodies[0].mesh.grid.shape) + 2 * stencil.INTERIOR_MARGIN)
+    fields = _fields([sim.model, sim.state, sim.terrain, sim.diagnostics, sim.integrator, sim.model.stencil])
+    scaling = sum(_field_bytes(f) for f in fields if f.shape and f.shape[0] >= n_p)
     data = load_scene("torus", ["solver.forces=stencil"]).data
-    with pytest.raises(UserError, match="only cube bodies"):
-        memory.estimate(data, "semi_implicit_euler", "f64", "cpu")
-
-
-def test_cli_refuses_mesh_with_exit_2(cli):
-    r = cli("run", "--scene", "torus", "--set", "solver.forces=stencil", "--duration", "0.01")
-    assert r.returncode == 2 and "only cube bodies" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    est = memory.estimate(data, "semi_implicit_euler", "f64", "cpu", fast_math=False)
+    assert scaling == est["fields"] == n_p * (2 + 6 + 6) * 8 + (n_p + points) * 4
+    gather = memory.estimate(load_scene("torus", ["solver.forces=gather"]).data, "semi_implicit_euler", "f64", "cpu",
+                             fast_math=False)
+    assert gather["fields"] > est["fields"]
 
 
 def test_velocity_verlet_refuses_the_stencil_before_any_work():
@@ -151,3 +185,78 @@ def test_velocity_verlet_refuses_the_stencil_before_any_work():
     data = load_scene("plane", ["solver.forces=stencil"]).data
     with pytest.raises(UserError, match="velocity_verlet: solver.forces = stencil"):
         memory.estimate(data, "velocity_verlet", "f64", "cpu")
+
+
+# One stencil run per backend, each on a Taichi runtime started for it, in a child process (a
+# driver crash cannot take pytest down). runtime.init refuses a backend Taichi would replace by the
+# CPU, and the child reports the arch Taichi really started, so a fallback fails the test.
+BACKEND_PROBE = """
+import json, sys
+import taichi as ti
+from taichi_soft import runtime
+from taichi_soft.sim.scene import load_scene
+from taichi_soft.sim.simulation import Simulation
+
+sets, steps, dt = json.loads(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
+out = {}
+for arch in sys.argv[4:]:
+    runtime.init(arch, "f32")
+    sim = Simulation(load_scene("plane", sets), integrator="semi_implicit_euler", dt=dt, options={"forces": "stencil"})
+    assert sim.advance(steps) == steps and not sim.integrator.diverged
+    out[arch] = {"arch": runtime.current()["arch"], "started": ti.lang.impl.current_cfg().arch.name,
+                 "strategy": sim.integrator.forces.strategy, "x": sim.state.numpy()[0].tolist(),
+                 "x0": sim.model.x0_np.tolist()}
+    ti.reset()
+print(json.dumps(out))
+"""
+
+
+def test_vulkan_stencil_matches_the_cpu():
+    """The stencil pass on Vulkan (Mesa's lavapipe runs it on the CPU here), f32: the deformed n = 6
+    cube after 30 steps of 1 ms lies within 1e-4 m of the CPU backend's, and its springs moved it
+    well away from free fall (so the agreement is not that of two empty force passes)."""
+    steps, dt = 30, 1e-3
+    sets = DEFORMED + ["body.0.n=6"]
+    r = subprocess.run([sys.executable, "-c", BACKEND_PROBE, json.dumps(sets), str(steps), str(dt), "vulkan", "cpu"],
+                       capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["vulkan"]["arch"] == "vulkan" and out["vulkan"]["started"] == "vulkan", out["vulkan"]["started"]
+    assert out["cpu"]["arch"] == "cpu"
+    assert out["vulkan"]["strategy"] == out["cpu"]["strategy"] == "stencil"
+    gpu, cpu = np.array(out["vulkan"]["x"]), np.array(out["cpu"]["x"])
+    x0 = np.array(out["cpu"]["x0"])
+    assert np.abs(gpu - cpu).max() <= 1e-4, np.abs(gpu - cpu).max()
+    free_fall = x0 + np.array([0.0, -9.8, 0.0]) * dt * dt * steps * (steps + 1) / 2  # semi-implicit Euler's
+    assert np.abs(cpu - free_fall).max() > 1e-2
+
+
+def test_auto_picks_the_stencil_for_parallel_f64_cube_steps_with_fast_math():
+    """forces = auto on a CPU with fast math: the stencil for cube bodies stepped in parallel launches
+    in f64 (docs/decisions/auto-picks-the-stencil.md); the gather in f32, for serial launches, mesh
+    bodies, velocity Verlet and GPUs; the scatter without fast math."""
+    from taichi_soft.sim.footprint import Counts
+    from taichi_soft.sim.integrators import integrator_class
+
+    big, small = Counts(64000, 10**6, lattice=True), Counts(8000, 10**5, lattice=True)
+    mesh = Counts(64000, 10**6, lattice=False)
+    euler = integrator_class("semi_implicit_euler")
+    assert euler.configure({}, "cpu", True, big).forces == "stencil"
+    assert integrator_class("rk4").configure({}, "cpu", True, big).forces == "stencil"
+    assert euler.configure({"mode": "parallel"}, "cpu", True, small).forces == "stencil"
+    assert euler.configure({}, "cpu", True, small).forces == "gather"
+    assert euler.configure({}, "cpu", True, mesh).forces == "gather"
+    assert euler.configure({}, "cpu", True, Counts(64000, 10**6, lattice=True, real_bytes=4)).forces == "gather"
+    assert integrator_class("velocity_verlet").configure({}, "cpu", True, big).forces == "gather"
+    assert euler.configure({}, "cuda", True, big).forces == "gather"
+    assert euler.configure({}, "cpu", False, big).forces == "scatter"
+
+
+def test_default_run_estimate_stores_no_springs_at_n40():
+    """The default run of the n = 40 cube (CPU, fast math, f64) stores no springs: its fields are
+    the masses, the state and the ping-pong state, 112 bytes per particle."""
+    data = load_scene("plane", ["body.0.n=40"]).data
+    est = memory.estimate(data, None, "f64", "cpu", fast_math=True)
+    assert est["fields"] == est["particles"] * (2 + 6 + 6) * 8
+    assert memory.estimate(data, None, "f32", "cpu", fast_math=True)["fields"] > est["fields"]  # f32: the gather

@@ -115,14 +115,17 @@ class Buffers:
 
 class Counts:
     """A scene's sizes: ``particles``, ``springs``; ``envelope`` (values of the skyline Cholesky
-    factor of its spring graph) and ``row_width`` (the gather strategy's padded rows, rows.py) are
-    computed on first use from the callables given, so a choice that needs neither costs nothing."""
+    factor of its spring graph), ``row_width`` (the gather strategy's padded rows, rows.py) and
+    ``lattice_points`` (the bodies' lattices' points: the stencil's presence mask) are computed on
+    first use from the callables given, so a choice that needs none costs nothing."""
 
     def __init__(self, particles: int, springs: int, envelope: Callable[[], int] | None = None,
-                 row_width: Callable[[], int] | None = None, lattice: bool = False):
+                 row_width: Callable[[], int] | None = None, lattice: bool = False,
+                 lattice_points: Callable[[], int] | None = None, real_bytes: int = 8):
         self.particles, self.springs = particles, springs
-        self.lattice = lattice  # every body a whole lattice (cubes): the stencil pass applies
-        self._envelope, self._row_width = envelope, row_width
+        self.real_bytes = real_bytes  # the run's float size (f64: 8): forces = auto depends on it
+        self.lattice = lattice  # every body a whole lattice (cubes): the stencil needs no presence mask
+        self._envelope, self._row_width, self._lattice_points = envelope, row_width, lattice_points
 
     @cached_property
     def envelope(self) -> int:
@@ -131,3 +134,8 @@ class Counts:
     @cached_property
     def row_width(self) -> int:
         return int(self._row_width())
+
+    @cached_property
+    def lattice_points(self) -> int:
+        """Points of the bodies' lattices (a mesh body's whole grid, kept or clipped)."""
+        return int(self._lattice_points())

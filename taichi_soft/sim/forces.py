@@ -69,17 +69,24 @@ def _damper_pair_force(x: ti.template(), dv: ti.template(), a, b, kd):
 STRATEGIES = ("scatter", "per_spring", "gather")
 
 
-def auto_strategy(arch: str, fast_math: bool) -> str:
-    """The force strategy ``forces = "auto"`` picks on backend ``arch`` ("cpu", "cuda", ...).
+def auto_strategy(arch: str, fast_math: bool, stencil: bool = False) -> str:
+    """The force strategy ``forces = "auto"`` picks on backend ``arch`` ("cpu", "cuda", ...);
+    ``stencil``: whether the stencil pass may run (every body a cube, parallel launches, f64, a
+    method that does not read the stored springs).
 
-    GPU: gather (the scatter's slab passes would run one slab per thread). CPU with fast math:
-    gather, whose padded rows LLVM vectorises: 1.5x the scatter at one thread in f32, as fast in
-    f64 at n = 40 (``rows_look_up_groups``), no slab passes (docs/benchmarks/README.md, "Speed").
+    GPU: gather (the scatter's slab passes would run one slab per thread; the stencil not measured
+    there). CPU with fast math: the stencil where allowed, as fast as the gather's padded rows or
+    faster with a fifth of their memory per particle (in f32, and for serial launches and mesh
+    bodies, the gather was faster); else the gather, whose rows LLVM vectorises:
+    1.5x the scatter at one thread in f32, as fast in f64 at n = 40 (``rows_look_up_groups``),
+    no slab passes (docs/decisions/auto-picks-the-stencil.md; docs/benchmarks/README.md, "Speed").
     CPU without fast math: nothing vectorises; the scatter (each spring once) is 1.3x the gather.
     """
     if arch != "cpu":
         return "gather"
-    return "gather" if fast_math else "scatter"
+    if not fast_math:
+        return "scatter"
+    return "stencil" if stencil else "gather"
 
 
 def rows_look_up_groups(real_bytes: int) -> bool:

@@ -77,17 +77,20 @@ def scene_counts(scene_data: dict) -> tuple[int, int]:
     return n_p, n_s
 
 
-def counts(scene_data: dict) -> Counts:
-    """The scene's ``footprint.Counts``. The Cholesky envelope and the rows' width are the bodies'
-    cubes' (a mesh body fills part of its n^3 cube, numbered in the same order: its envelope is
-    smaller)."""
+def counts(scene_data: dict, real_bytes: int = 8) -> Counts:
+    """The scene's ``footprint.Counts`` for a run with reals of ``real_bytes``. The Cholesky
+    envelope and the rows' width are the bodies' cubes' (a mesh body fills part of its n^3 cube,
+    numbered in the same order: its envelope is smaller)."""
     from .lattice import envelope_size
     from .rows import lattice_width
+    from .stencil import lattice_points as mask_points
 
     bodies = [int(b["n"]) for b in scene_data["body"]]
     lattice = all(b.get("shape", "cube") != "mesh" for b in scene_data["body"])
-    return Counts(*scene_counts(scene_data), lattice=lattice, envelope=lambda: sum(envelope_size(n) for n in bodies),
-                  row_width=lambda: max(lattice_width(n) for n in bodies))
+    return Counts(*scene_counts(scene_data), lattice=lattice, real_bytes=real_bytes, envelope=lambda: sum(envelope_size(n) for n in bodies),
+                  row_width=lambda: max(lattice_width(n) for n in bodies),
+                  lattice_points=lambda: mask_points(_mesh_lattice(b).grid.shape if b.get("shape", "cube") == "mesh"
+                                                     else (int(b["n"]),) * 3 for b in scene_data["body"]))
 
 
 def _surface_host_bytes(scene_data: dict) -> int:
@@ -155,7 +158,7 @@ def estimate(scene_data: dict, integrator, precision: str, arch: str, record_sta
     classes = [integrator_class(name) for name in names]
     arch = resolve_arch(arch)
     real = 8 if precision == "f64" else 4
-    c = counts(scene_data)
+    c = counts(scene_data, real)
     n_p, n_s = c.particles, c.springs
     buffers = [integrator_buffers(scene_data, name, arch, real, fast_math, c) for name in names]
     fields = 0

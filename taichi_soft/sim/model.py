@@ -158,13 +158,20 @@ class Model:
 
     def pairs_among(self, near) -> np.ndarray:
         """Spring ends [k, 2] int32 of the springs whose two ends are both ``near`` (a bool mask
-        over particles), from the stored springs, or without them from the lattice (cube bodies)."""
-        if self.springs_stored() or not self._lattice:
+        over particles), from the stored springs, or without them from the lattice (cube bodies) and
+        the mesh bodies' host springs."""
+        if self.springs_stored():
             ends = self.pairs_np
             return ends[near[ends[:, 0]] & near[ends[:, 1]]]
         from .lattice import lattice_pairs_among
 
-        parts = [lattice_pairs_among(info.spec.n, info.particles.start, near[info.particles]) for info in self.bodies]
+        parts = []
+        for info in self.bodies:
+            if info.mesh is None:
+                parts.append(lattice_pairs_among(info.spec.n, info.particles.start, near[info.particles]))
+            else:  # the mesh body's (cached, host) springs
+                ends = info.mesh.pairs + np.int32(info.particles.start)
+                parts.append(ends[near[ends[:, 0]] & near[ends[:, 1]]])
         return np.concatenate(parts) if parts else np.zeros((0, 2), np.int32)
 
     def ensure_adjacency(self):

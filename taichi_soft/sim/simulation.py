@@ -106,11 +106,11 @@ def _stores_springs(name: str, options, data: dict) -> bool:
     """Whether integrator ``name`` with ``options`` reads stored springs on this scene (all but the
     stencil pass): the model then stores them in its own tree."""
     from .integrators import integrator_class
-    from .integrators.base import running_target
+    from .integrators.base import running_real_bytes, running_target
     from .memory import counts
 
     cls = integrator_class(name)
-    return cls.stores_springs(cls.configure(options, *running_target(), counts(data)))
+    return cls.stores_springs(cls.configure(options, *running_target(), counts(data, running_real_bytes())))
 
 
 class Simulation:

@@ -24,13 +24,14 @@ first diverged step index.
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
 import taichi as ti
 
 from ... import runtime
 from ..allocation import allocate, page_aligned_vectors
 from ..footprint import Buffers, Counts, FieldCounts
 from ..forces import ForceEvaluator, auto_strategy, pass_buffers
-from ..stencil import NAME as STENCIL, StencilForces, check_lattice
+from ..stencil import NAME as STENCIL, StencilForces, lattice_dims, lattice_points, mask_ints
 from ..linalg import SkylineCholesky
 from ..scalar_fields import assign
 from .options import Config, choice
@@ -68,17 +69,19 @@ class IntegratorConfig(Config):
 class ExplicitConfig(IntegratorConfig):
     """The explicit methods' options: launches, and how the force pass sums spring forces."""
 
+    # Whether ``forces = auto`` may pick the stencil (a method whose step reads the stored springs: no).
+    auto_stencil: ClassVar[bool] = True
     forces: str = choice("auto", ("auto", "scatter", "per_spring", "gather", "stencil"),
                          "scatter: each spring once, added to both ends; per_spring: each spring once, stored; "
                          "gather: each particle evaluates its springs; stencil: gather with the springs found "
-                         "by lattice arithmetic, none stored (cube bodies); auto: by backend and fast math")
+                         "by lattice arithmetic, none stored; auto: by backend, fast math, launches and bodies")
 
     def resolve(self, arch: str, fast_math: bool, counts: Counts) -> "ExplicitConfig":
         out = super().resolve(arch, fast_math, counts)
         if out.forces == "auto":
-            out = out.but(forces=auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math))
-        if out.forces == STENCIL:
-            check_lattice(counts.lattice)
+            out = out.but(forces=auto_strategy("cpu" if arch == "cpu" else "gpu", fast_math,
+                                               stencil=self.auto_stencil and counts.lattice and out.mode == "parallel"
+                                               and counts.real_bytes == 8))
         return out
 
 
@@ -183,8 +186,10 @@ class Integrator:
         table and ``FIELDS``, and the second state of ping-pong steps. tests/test_memory.py checks
         it against the fields a real integrator allocates."""
         out = Buffers(cls.field_counts())
-        if not cls.implicit and options.forces != STENCIL:  # the stencil allocates O(bodies)
+        if not cls.implicit and options.forces != STENCIL:
             out = out + pass_buffers(options.forces, counts, real_bytes)
+        elif not cls.implicit:  # the stencil: O(bodies), and the presence mask with a mesh body
+            out = out + Buffers(ints=0 if counts.lattice else mask_ints(counts.particles, counts.lattice_points))
         if cls.uses_ping_pong(options):
             out = out + Buffers(PING_PONG)
         return out
@@ -393,9 +398,15 @@ def running_target() -> tuple[str, bool]:
     return ("cpu" if cfg.arch in (ti.x64, ti.arm64) else "gpu"), bool(cfg.fast_math)
 
 
+def running_real_bytes() -> int:
+    """Bytes of the running Taichi's default float (f64: 8, f32: 4)."""
+    return 8 if ti.lang.impl.current_cfg().default_fp == ti.f64 else 4
+
+
 def model_counts(model) -> Counts:
     """The ``Counts`` of a built model (the envelope read from its springs, only if asked for)."""
-    return Counts(model.n_particles, model.n_springs, lattice=model._lattice,
+    return Counts(model.n_particles, model.n_springs, lattice=model._lattice, real_bytes=np.dtype(model.real).itemsize,
+                  lattice_points=lambda: lattice_points(lattice_dims(info) for info in model.bodies),
                   envelope=lambda: SkylineCholesky.envelope_size(model.n_particles, model.pairs_np))
 
 

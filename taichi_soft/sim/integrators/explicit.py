@@ -14,6 +14,7 @@ state itself (``Integrator.ping_pong``).
 """
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import taichi as ti
 
@@ -216,6 +217,8 @@ class VelocityVerlet(Integrator):
     @dataclass(frozen=True)
     class Config(ExplicitConfig):
         """The explicit options; the damper-only corrector reads the stored springs, so not the stencil."""
+
+        auto_stencil: ClassVar[bool] = False
 
         def resolve(self, arch: str, fast_math: bool, counts) -> "ExplicitConfig":
             out = super().resolve(arch, fast_math, counts)
