@@ -147,3 +147,41 @@ def test_a_chaotic_corner_impact_gets_no_error_estimate(make_sim, name, dt):
     assert est["com_error"] is None and not est["in_asymptotic_range"]
     com_line = next(line for line in ee.lines(est) if "centre of mass" in line)
     assert "not in the asymptotic range" in com_line and "estimated error" not in com_line, com_line
+
+
+def test_the_videos_overlay_shows_the_estimate(tmp_path, monkeypatch, capsys):
+    """``run --error-estimate`` with an output that draws frames: every frame's overlay ends with the
+    estimate's line (the summary's estimate in words), the line fits a gallery-sized frame, and the
+    camera keeps the taller panel clear."""
+    from taichi_soft import cli
+    from taichi_soft.commands import common
+    from taichi_soft.render import overlay, recorder
+
+    monkeypatch.setattr(common, "start_taichi", lambda args: None)  # conftest's runtime is running
+    seen = []
+    describe = recorder.FrameLabels.describe
+
+    def spy(self, sim):
+        lines, cam = describe(self, sim)
+        seen.append(lines)
+        return lines, cam
+
+    monkeypatch.setattr(recorder.FrameLabels, "describe", spy)
+    summary = tmp_path / "s.json"
+    code = cli.main(["run", "--scene", "free_float", *sum((["--set", s] for s in SMOOTH), []), "--duration", "0.1",
+                     "--error-estimate", "--export-mesh", str(tmp_path / "meshes"), "--pipeline", "serial",
+                     "--summary", str(summary)])
+    assert code == 0, capsys.readouterr().err
+    est = json.loads(summary.read_text())["error_estimate"]
+    line = ee.legend(est)
+    assert seen and all(lines[-1] == line and len(lines) == overlay.INFO_LINES + 1 for lines in seen), seen[:1]
+    assert f"shape {est['shape_error']:.3g} m" in line and "round-off" in line  # the free body's centre of mass
+    assert overlay._text_size(line, overlay.font(round(360 / 34)))[0] < 640 - 20  # inside a 640x360 frame
+    assert overlay.info_margin(overlay.INFO_LINES) == overlay.INFO_MARGIN < overlay.info_margin(overlay.INFO_LINES + 1)
+
+
+def test_the_legend_says_why_there_is_no_number():
+    base = {"diverged": False, "order": 2, "com_round_off": False, "shape_round_off": False}
+    text = ee.legend(dict(base, com_error=None, shape_error=1.5e-3))
+    assert text == "error estimate: centre of mass none (not order 2), shape 0.0015 m"
+    assert "diverged" in ee.legend(dict(base, diverged=True))

@@ -146,3 +146,20 @@ def lines(est: dict) -> list[str]:
             out.append(f"  {what}: dt vs dt/2 differ by {diff:.3g} m; not in the asymptotic range "
                        f"(the runs do not fit order {est['order']}): no error estimate")
     return out
+
+
+def legend(est: dict) -> str:
+    """The estimate in one short line, for a video's overlay and a gallery caption: each measure's
+    estimated error [m], or why there is none."""
+    if est["diverged"]:
+        return "error estimate: none (a run at a smaller step diverged)"
+    parts = []
+    for key, what in (("com", "centre of mass"), ("shape", "shape")):
+        err = est[f"{key}_error"]
+        if est[f"{key}_round_off"]:
+            parts.append(f"{what} {err:.2g} m (round-off)")
+        elif err is not None:
+            parts.append(f"{what} {err:.3g} m")
+        else:
+            parts.append(f"{what} none (not order {est['order']})")
+    return "error estimate: " + ", ".join(parts)
