@@ -186,4 +186,5 @@ def test_the_legend_says_why_there_is_no_number():
     base = {"diverged": False, "order": 2, "com_round_off": False, "shape_round_off": False}
     text = ee.legend(dict(base, com_error=None, shape_error=1.5e-3))
     assert text == "error estimate: centre of mass none (not order 2), shape 0.0015 m"
+    assert ee.legend(dict(base, com_error=None, shape_error=None)).endswith("do not fit order 2)")
     assert "diverged" in ee.legend(dict(base, diverged=True))
