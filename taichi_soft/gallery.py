@@ -43,6 +43,7 @@ class Plan:
     dt: float | None  # [s], None: per integrator (see run_dt)
     sets: list  # --set overrides applied to every run
     out: Path
+    error_estimate: bool = False  # each single run also at dt/2 and dt/4: its estimated error in the caption
 
 
 def run_dt(scene_dt: float, integrator: str, dt: float | None) -> float:
@@ -101,7 +102,7 @@ def build_tasks(plan: Plan, scene_dts: dict) -> list[Task]:
         for name in plan.integrators:
             tasks.append(Task(f"{terrain}/{name}", "taichi_soft.gallery:render_run",
                               dict(common, scene=terrain, integrator=name, resolution=tuple(plan.resolution),
-                                   dt=run_dt(scene_dts[terrain], name, plan.dt))))
+                                   dt=run_dt(scene_dts[terrain], name, plan.dt), error_estimate=plan.error_estimate)))
         tasks.append(Task(f"{terrain}/compare", "taichi_soft.gallery:render_compare",
                           dict(common, scene=terrain, integrators=list(plan.integrators), dt=plan.dt,
                                resolution=mosaic_resolution(plan.resolution))))
@@ -109,11 +110,14 @@ def build_tasks(plan: Plan, scene_dts: dict) -> list[Task]:
 
 
 # -- tasks (each in its own process: own Taichi runtime, own offscreen window) ----------------------
-def render_run(scene: str, integrator: str, dt: float, duration, resolution, sets) -> dict:
-    """Render one run to an MP4; return its bytes, frame count, run summary and energy per frame."""
+def render_run(scene: str, integrator: str, dt: float, duration, resolution, sets, error_estimate: bool = False) -> dict:
+    """Render one run to an MP4; return its bytes, frame count, run summary and energy per frame,
+    and with ``error_estimate`` the run's estimate (``sim.error_estimate.estimate``, also in the
+    video's overlay)."""
     from . import runtime
     from .render import overlay
     from .render.recorder import FrameRecorder, RenderOptions
+    from .sim import error_estimate as ee
     from .sim.integrators import scene_options
     from .sim.simulation import Simulation
 
@@ -122,9 +126,11 @@ def render_run(scene: str, integrator: str, dt: float, duration, resolution, set
     sim = Simulation(sc, integrator=integrator, options=scene_options(integrator, sc.data))
     fps = sc.data["render"]["fps"]
     energy = []
+    estimate = ee.estimate(sim, sc.sim["duration"], sim.integrator.order) if error_estimate else None
+    legend = () if estimate is None else (ee.legend(estimate),)
     with tempfile.TemporaryDirectory(prefix="taichi-soft-gallery-") as tmp:
         video = Path(tmp) / "run.mp4"
-        recorder = FrameRecorder(sim, RenderOptions(video=video, fps=fps, resolution=tuple(resolution)))
+        recorder = FrameRecorder(sim, RenderOptions(video=video, fps=fps, resolution=tuple(resolution), legend=legend))
 
         def on_frame(s):
             recorder(s)
@@ -139,8 +145,12 @@ def render_run(scene: str, integrator: str, dt: float, duration, resolution, set
         recorder.finish()
         data = video.read_bytes()
     info = overlay.run_info(sim)
-    return {"video": data, "frames": recorder.frames, "fps": fps, "summary": finite_or_none(sim.summary(result)),
-            "energy": finite_or_none(energy), "stiffness": info.stiffness, "damping": info.damping}
+    out = {"video": data, "frames": recorder.frames, "fps": fps, "summary": finite_or_none(sim.summary(result)),
+           "energy": finite_or_none(energy), "stiffness": info.stiffness, "damping": info.damping}
+    if estimate is not None:
+        estimate["run_wall_seconds"] = result.wall_seconds
+        out["error_estimate"] = finite_or_none(estimate)
+    return out
 
 
 def render_compare(scene: str, integrators: list, dt, duration, resolution, sets) -> dict:
@@ -241,6 +251,11 @@ def _caption(cell: dict) -> str:
         lines = [f"dt = {s['dt']:g} s, k = {esc(res['stiffness'])}", diverged,
                  f"final energy {'-' if final is None else format(final, '.6g') + ' J'}",
                  f"wall time {s['wall_seconds']:.1f} s (simulate + render), {res['frames']} frames"]
+        est = res.get("error_estimate")
+        if est is not None:
+            from .sim.error_estimate import legend
+
+            lines.append(f"{esc(legend(est))} (from runs at dt/2 and dt/4, {est['cost_seconds']:.1f} s)")
         plot = energy_svg(res["energy"], s["diverged_at"])
     else:
         lines = [f"all integrators at dt = {res['dt']:g} s, {res['frames']} frames"]
@@ -295,7 +310,8 @@ def page_html(plan: Plan, cells: dict, wall_seconds: float) -> str:
              f"<p>{len(plan.terrains)} terrains x {len(plan.integrators)} integrators"
              f"{', duration ' + format(plan.duration, 'g') + ' s' if plan.duration else ''}, "
              f"{plan.resolution[0]}x{plan.resolution[1]} px per run"
-             f"{', --set ' + esc(' '.join(plan.sets)) if plan.sets else ''}; all tasks took {wall_seconds:.0f} s. "
+             f"{', --set ' + esc(' '.join(plan.sets)) if plan.sets else ''}"
+             f"{', each run with its error estimate' if plan.error_estimate else ''}; all tasks took {wall_seconds:.0f} s. "
              f'Data: <a href="gallery.json">gallery.json</a>.</p>',
              f'<div class="grid" style="grid-template-columns: 2em repeat({len(cols)}, minmax(120px, 1fr));">',
              '<div></div>'] + [f'<div class="head">{esc(c)}</div>' for c in cols]

@@ -250,3 +250,60 @@ def test_each_integrator_gets_a_step_it_takes_on_the_default_scenes():
     model, _ = build_world(load_scene("plane").data)
     w2, ratios = ls.scene_modes(model)
     assert run_dt(1e-3, "velocity_verlet", None) == 1e-3 < ls.stable_limit("velocity_verlet", w2, ratios)
+
+
+def test_error_estimate_reaches_the_run_tasks_and_their_captions(tmp_path, monkeypatch):
+    """``gallery --error-estimate``: the plan asks for it, each single-run task (not the mosaics)
+    estimates its run and draws it in the video's overlay, and the caption shows the estimate. The
+    task runs in this process with its video writer left out (the videos are another test's)."""
+    import html
+
+    from taichi_soft import gallery, runtime
+    from taichi_soft.render import recorder
+    from taichi_soft.sim import error_estimate as ee
+
+    class Planned(Exception):
+        pass
+
+    plans = []
+
+    def stop(plan, executor, scene_dts):
+        plans.append(plan)
+        raise Planned
+
+    monkeypatch.setattr(gallery, "run_gallery", stop)
+    with pytest.raises(Planned):
+        run_main(["gallery", "--terrains", "free_float", "--integrators", "velocity_verlet", "--duration", "0.1",
+                  "--set", "body.0.n=3", "--error-estimate", "--out", str(tmp_path / "g"), "--workers", "1"])
+    plan = plans[0]
+    assert plan.error_estimate
+    tasks = gallery.build_tasks(plan, {"free_float": 1e-3})
+    run_task = next(t for t in tasks if t.fn.endswith(":render_run"))
+    assert run_task.kwargs["error_estimate"] and all("error_estimate" not in t.kwargs for t in tasks if t is not run_task)
+
+    legends = []
+
+    class Recorder:  # what render_run needs of a FrameRecorder, without rendering
+        def __init__(self, sim, options):
+            legends.append(options.legend)
+            self.video, self.frames = options.video, 0
+
+        def __call__(self, sim):
+            self.frames += 1
+
+        def finish(self):
+            self.video.write_bytes(b"")
+
+        def abort(self):
+            pass
+
+    monkeypatch.setattr(runtime, "init", lambda *a, **k: None)  # conftest's runtime is running
+    monkeypatch.setattr(recorder, "FrameRecorder", Recorder)
+    res = gallery.render_run(**run_task.kwargs)
+    est = res["error_estimate"]
+    assert est["dts"] == [1e-3, 5e-4, 2.5e-4] and est["shape_error"] > 0
+    assert legends == [(ee.legend(est),)]
+    cells = {"free_float/velocity_verlet": {"video": "a.mp4", "result": res, "error": None},
+             "free_float/compare": {"video": "b.mp4", "result": None, "error": "not run (interrupted)"}}
+    page = gallery.page_html(plan, cells, 1.0)
+    assert html.escape(ee.legend(est)) in page and "each run with its error estimate" in page

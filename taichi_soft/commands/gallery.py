@@ -21,6 +21,9 @@ def add_parser(sub):
     p_gal.add_argument("--resolution", type=resolution_arg, metavar="WxH",
                        help="size of each run's video (default 640x360; the compare mosaics are twice as wide and high)")
     p_gal.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override for every run (repeatable)")
+    p_gal.add_argument("--error-estimate", action="store_true",
+                       help="each run also at dt/2 and dt/4: its estimated error in the caption and the video's "
+                            "overlay (about 7x each run's simulation cost)")
     p_gal.add_argument("--out", default=f"{DEFAULT_OUT}/gallery", help=f"output folder (default: {DEFAULT_OUT}/gallery)")
     add_task_args(p_gal)
     p_gal.set_defaults(func=cmd_gallery)
@@ -46,7 +49,8 @@ def cmd_gallery(args) -> int:
     resolution = tuple(args.resolution or DEFAULT_RESOLUTION)
     check_video_size(Path("gallery.mp4"), *resolution)
     out = check_output_dir(args.out, "--out")
-    plan = Plan(terrains, integrators, args.duration, resolution, args.dt, list(args.set), out)
+    plan = Plan(terrains, integrators, args.duration, resolution, args.dt, list(args.set), out,
+                error_estimate=args.error_estimate)
     scene_dts = check_plan(plan)  # every scene and --set checked before any task
     executor = make_executor(args.workers, args.scheduler)
     try:

@@ -97,6 +97,8 @@ def cmd_run(args) -> int:
             return EXIT_UNRELIABLE
     elif args.error_estimate:
         estimate = error_estimate.estimate(sim, duration, sim.integrator.order)
+    if estimate is not None:
+        render_options.legend = (error_estimate.legend(estimate),)  # the video's overlay shows it too
     fps = scene.data["render"]["fps"]
     label = f"{scene.label}/{sim.integrator_name}"
     _note_whole_steps(duration, sim.dt)

@@ -21,6 +21,7 @@ PANEL_ALPHA = 0.62
 TEXT = (240, 242, 245)
 ALERT = (215, 38, 38)
 INFO_MARGIN = 0.14  # fraction of the height the info panel covers at the top (cameras keep it clear)
+INFO_LINES = 3  # the lines INFO_MARGIN holds (``RunInfo.lines`` without extra lines)
 
 
 @lru_cache(maxsize=32)
@@ -46,12 +47,18 @@ class RunInfo:
     dt: float  # s
     stiffness: str  # already formatted, e.g. "2000 N/m" or "600..8000 N/m"
     damping: str  # e.g. "60 N s/m"
+    extra: tuple = ()  # further fixed lines under the others (the run's error estimate)
 
     def lines(self, time: float, energy_change: float) -> list[str]:
         """Overlay lines at simulated ``time`` [s] with the total energy's change since t = 0 [J]."""
         return [f"{self.scene} | {self.integrator} | dt = {self.dt:g} s",
                 f"k = {self.stiffness} | damping = {self.damping}",
-                f"t = {time:7.3f} s | {ENERGY_LABEL} = {energy_text(energy_change)}"]
+                f"t = {time:7.3f} s | {ENERGY_LABEL} = {energy_text(energy_change)}", *self.extra]
+
+
+def info_margin(lines: int) -> float:
+    """Fraction of the height an info panel of ``lines`` lines covers (``draw_info``'s default size)."""
+    return INFO_MARGIN + max(0, lines - INFO_LINES) * 1.3 / 34
 
 
 # Labels show the total energy's change since the start: its value depends on where gravity's
@@ -74,12 +81,13 @@ def value_range(values, unit: str) -> str:
     return f"{lo:g} {unit}" if lo == hi else f"{lo:g}..{hi:g} {unit}"
 
 
-def run_info(sim) -> RunInfo:
+def run_info(sim, extra=()) -> RunInfo:
     """The overlay labels of a ``Simulation``: stiffness and damping read from the model's fields
-    (so values changed at run time show), as one value or a range over bodies and spring kinds."""
+    (so values changed at run time show), as one value or a range over bodies and spring kinds;
+    ``extra`` lines go under them."""
     m = sim.model
     return RunInfo(sim.scene.label, sim.integrator_name, sim.dt,
-                   value_range(m.group_k.to_numpy(), "N/m"), value_range(m.group_kd.to_numpy(), "N s/m"))
+                   value_range(m.group_k.to_numpy(), "N/m"), value_range(m.group_kd.to_numpy(), "N s/m"), tuple(extra))
 
 
 def _panel(img: np.ndarray, box, text_rows, fill=PANEL, alpha=PANEL_ALPHA):

@@ -36,6 +36,7 @@ class RenderOptions:
     renderer: str = "auto"  # "auto", "ggui" or "taichi" (render.choose)
     quality: str = "high"  # the taichi renderer's look: render.quality.QUALITIES
     pipeline: str = "serial"  # "serial" or "overlap" (render.pipeline): where the frames are drawn
+    legend: tuple = ()  # further overlay lines under the run's labels (e.g. its error estimate)
 
     @property
     def needs_renderer(self) -> bool:
@@ -183,9 +184,9 @@ class FrameLabels:
         from .camera import scene_camera
 
         width, height = options.resolution
+        self.info = overlay.run_info(sim, options.legend)
         self.camera = scene_camera(sim.scene.data, width / height, options.follow,
-                                   overlay.INFO_MARGIN if options.overlay else 0.0)
-        self.info = overlay.run_info(sim)
+                                   overlay.info_margin(overlay.INFO_LINES + len(options.legend)) if options.overlay else 0.0)
         self.energy0: float | None = None  # total energy [J] at the first frame, the overlay's zero
 
     def describe(self, sim) -> tuple[list[str], object]:

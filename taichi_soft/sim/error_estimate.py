@@ -131,7 +131,7 @@ def lines(est: dict) -> list[str]:
     dts = ", ".join(f"{d:g}" for d in est["dts"])
     cost = f"cost {est['cost_seconds']:.2f} s of wall time"
     if est.get("run_wall_seconds"):
-        cost += f", {est['cost_seconds'] / est['run_wall_seconds']:.1f}x the run's"
+        cost += f", {est['cost_seconds'] / est['run_wall_seconds']:.2g}x the run's"
     if est["diverged"]:
         return [f"error estimate: a run at a smaller step diverged; no estimate ({cost})"]
     out = [f"error estimate (runs at {dts} s, largest over {est['samples']} samples; {cost}):"]
@@ -146,3 +146,22 @@ def lines(est: dict) -> list[str]:
             out.append(f"  {what}: dt vs dt/2 differ by {diff:.3g} m; not in the asymptotic range "
                        f"(the runs do not fit order {est['order']}): no error estimate")
     return out
+
+
+def legend(est: dict) -> str:
+    """The estimate in one short line, for a video's overlay and a gallery caption: each measure's
+    estimated error [m], or why there is none."""
+    if est["diverged"]:
+        return "error estimate: none (a run at a smaller step diverged)"
+    if est["com_error"] is None and est["shape_error"] is None:
+        return f"error estimate: none (the runs at dt/2, dt/4 do not fit order {est['order']})"
+    parts = []
+    for key, what in (("com", "centre of mass"), ("shape", "shape")):
+        err = est[f"{key}_error"]
+        if est[f"{key}_round_off"]:
+            parts.append(f"{what} {err:.2g} m (round-off)")
+        elif err is not None:
+            parts.append(f"{what} {err:.3g} m")
+        else:
+            parts.append(f"{what} none (not order {est['order']})")
+    return "error estimate: " + ", ".join(parts)

@@ -225,21 +225,30 @@ class ForceEvaluator:
                 kkd = self.kkd[s]
                 self.spring_f[s] = spring_pair_force(x, v, ends[0], ends[1], m.spring_rest[s], kkd[0], kkd[1])
         elif ti.static(self.strategy == "scatter" and self.parallel):
-            for parity in ti.static(range(2)):
-                # Slabs of one parity share no particle, so each may run on its own thread. Taichi
-                # 1.7's CPU backend gives every task of a parallel loop at least 512 iterations
-                # (``cpu_block_dim_adaptive``, which overrides ``loop_config(block_dim=...)``), so a
-                # loop over the few slabs would run on one thread: slab k is iteration
-                # k * SLAB_STRIDE of a longer loop whose other iterations do nothing.
-                for t in range((self.n_slabs - parity + 1) // 2 * SLAB_STRIDE):
-                    if t % SLAB_STRIDE == 0:
-                        slab = 2 * (t // SLAB_STRIDE) + parity
-                        for r in range(self.slab_first[slab], self.slab_first[slab + 1]):
-                            for s in range(self.slab_range[r][0], self.slab_range[r][1]):
-                                self._scatter(x, v, s)
+            self._slab_scatter(x, v, False)
         elif ti.static(self.strategy == "scatter"):
             for s in range(m.n_springs):
                 self._scatter(x, v, s)
+
+    @ti.func
+    def _slab_scatter(self, x: ti.template(), v: ti.template(), dampers_only: ti.template()):
+        """scatter, parallel: every spring's force (with ``dampers_only``, compile-time: its damper
+        alone at velocities ``v``) added to both ends' sums, slab by slab (top-level loops)."""
+        for parity in ti.static(range(2)):
+            # Slabs of one parity share no particle, so each may run on its own thread. Taichi
+            # 1.7's CPU backend gives every task of a parallel loop at least 512 iterations
+            # (``cpu_block_dim_adaptive``, which overrides ``loop_config(block_dim=...)``), so a
+            # loop over the few slabs would run on one thread: slab k is iteration
+            # k * SLAB_STRIDE of a longer loop whose other iterations do nothing.
+            for t in range((self.n_slabs - parity + 1) // 2 * SLAB_STRIDE):
+                if t % SLAB_STRIDE == 0:
+                    slab = 2 * (t // SLAB_STRIDE) + parity
+                    for r in range(self.slab_first[slab], self.slab_first[slab + 1]):
+                        for s in range(self.slab_range[r][0], self.slab_range[r][1]):
+                            if ti.static(dampers_only):
+                                self._scatter_damper(x, v, s)
+                            else:
+                                self._scatter(x, v, s)
 
     @ti.func
     def _scatter(self, x: ti.template(), v: ti.template(), s):
@@ -254,20 +263,7 @@ class ForceEvaluator:
     def accel(self, x: ti.template(), v: ti.template(), i, dt):
         """Acceleration [m/s^2] of particle i at state (x, v), once per particle and pass;
         per_spring and scatter need ``spring_pass`` first."""
-        m = self.model
-        f = ti.Vector.zero(float, 3)
-        if ti.static(self.strategy == "per_spring"):
-            # Two branch-free runs: springs where i is end a (+f), then end b (-f).
-            for e in range(m.adj_offset[i], m.adj_split[i]):
-                f += self.spring_f[m.adj_spring[e]]
-            for e in range(m.adj_split[i], m.adj_offset[i + 1]):
-                f -= self.spring_f[end_b_spring(m.adj_spring[e])]
-        elif ti.static(self.strategy == "scatter"):
-            f = self.f[i]
-            self.f[i] = ti.Vector.zero(float, 3)  # ready for the next pass
-        else:
-            f = self._row_force(x, v, i, ti.static(not self._row_copies()))
-        return self.particle_accel(x, v, i, f, dt)
+        return self.particle_accel(x, v, i, self.spring_sum(x, v, i), dt)
 
     @ti.func
     def _row_force(self, x: ti.template(), v: ti.template(), i, lookup: ti.template()):
@@ -290,7 +286,6 @@ class ForceEvaluator:
             f += spring_force(d, vi - v[j], d.norm(), rows.rest[e], kkd[0], kkd[1])
         return f
 
-    # -- the damper alone (velocity Verlet's corrector) -------------------------------------------
     @ti.func
     def spring_sum(self, x: ti.template(), v: ti.template(), i):
         """Spring and damper force sum [N] on particle i at state (x, v), without gravity or contact
@@ -298,17 +293,19 @@ class ForceEvaluator:
         m = self.model
         f = ti.Vector.zero(float, 3)
         if ti.static(self.strategy == "per_spring"):
+            # Two branch-free runs: springs where i is end a (+f), then end b (-f).
             for e in range(m.adj_offset[i], m.adj_split[i]):
                 f += self.spring_f[m.adj_spring[e]]
             for e in range(m.adj_split[i], m.adj_offset[i + 1]):
                 f -= self.spring_f[end_b_spring(m.adj_spring[e])]
         elif ti.static(self.strategy == "scatter"):
             f = self.f[i]
-            self.f[i] = ti.Vector.zero(float, 3)
+            self.f[i] = ti.Vector.zero(float, 3)  # ready for the next pass
         else:
             f = self._row_force(x, v, i, ti.static(not self._row_copies()))
         return f
 
+    # -- the damper alone (velocity Verlet's corrector) -------------------------------------------
     @ti.func
     def damper_pass(self, x: ti.template(), dv: ti.template()):
         """``spring_pass`` for the dampers alone at velocities ``dv`` [m/s] (the springs' stiffness
@@ -320,13 +317,7 @@ class ForceEvaluator:
                 ends = m.spring_ends[s]
                 self.spring_f[s] = _damper_pair_force(x, dv, ends[0], ends[1], self.kkd[s][1])
         elif ti.static(self.strategy == "scatter" and self.parallel):
-            for parity in ti.static(range(2)):  # the slabs of ``spring_pass``
-                for t in range((self.n_slabs - parity + 1) // 2 * SLAB_STRIDE):
-                    if t % SLAB_STRIDE == 0:
-                        slab = 2 * (t // SLAB_STRIDE) + parity
-                        for r in range(self.slab_first[slab], self.slab_first[slab + 1]):
-                            for s in range(self.slab_range[r][0], self.slab_range[r][1]):
-                                self._scatter_damper(x, dv, s)
+            self._slab_scatter(x, dv, True)
         elif ti.static(self.strategy == "scatter"):
             for s in range(m.n_springs):
                 self._scatter_damper(x, dv, s)
