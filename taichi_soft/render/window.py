@@ -78,8 +78,8 @@ def window_rgb(window) -> np.ndarray:
     """The window's last rendered frame as uint8 RGB [height, width, 3], top row first.
 
     GGUI hands back float32 [width, height, 4] with the origin at the bottom left. One parallel
-    Taichi kernel pass scales, rounds, transposes and flips it (on two CPU cores about 1.5x
-    faster than numpy's transposed clip-scale-cast chain, interleaved medians; docs/rendering.md).
+    Taichi kernel pass scales, rounds, transposes and flips it: every frame is read back, and one
+    parallel pass replaces numpy's chain of transposed copies (clip, scale, cast).
     """
     from .readback import float_image_to_rgb8  # imports Taichi: not at this module's load
 
