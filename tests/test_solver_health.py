@@ -8,7 +8,7 @@ solvers fail no step: tests/test_f32_implicit.py).
 import taichi as ti
 
 from taichi_soft.sim.integrators.implicit.health import assess
-from taichi_soft.sim.integrators.implicit.newton import ImplicitEuler
+from taichi_soft.sim.integrators.implicit.implicit_euler import ImplicitEuler
 from taichi_soft.sim.integrators.implicit.walk import InKernel, Launches, Walk
 
 

@@ -53,7 +53,7 @@ class ImplicitIntegrator(Integrator):
     solver whose direction has phases of its own extends ``IN_KERNEL`` and ``LAUNCHES`` with them.
 
     Fields: a solver declares those of a fixed size in ``BUFFERS`` (the base class allocates them)
-    or, for a part it builds (``newton.SpringHessian``, ``laplacian.LaplacianMatrix``), adds the
+    or, for a part it builds (``implicit_euler.SpringHessian``, ``fast_mass_spring_laplacian.LaplacianMatrix``), adds the
     part's table to ``FIELDS``; those whose size depends on its options (a factor, L-BFGS pairs) it
     allocates in ``__init__`` before calling this one's, and declares them in ``buffers``. (Fields
     allocated together, with no kernel launch or field access between them, share one Taichi SNode
@@ -144,7 +144,7 @@ class ImplicitIntegrator(Integrator):
     @ti.func
     def _grab_factored(self, i):
         """Whether the solver's matrix already carries the grab on particle i (fast_mass_spring's
-        factor does, local_global.py); otherwise a grabbed particle counts as held (objective.py)."""
+        factor does, fast_mass_spring.py); otherwise a grabbed particle counts as held (objective.py)."""
         return False
 
     @ti.func

@@ -1,7 +1,7 @@
 """``fast_mass_spring``'s search direction as walks (walk.py): the global step, and L-BFGS over it.
 
 Its phases beyond the shared ones (the factor's solve, the scaled contact step, the L-BFGS
-two-loop recursion: ti.funcs of local_global.py) extend both executors, one line each.
+two-loop recursion: ti.funcs of fast_mass_spring.py) extend both executors, one line each.
 """
 
 import taichi as ti
@@ -32,7 +32,7 @@ GLOBAL_STEP = Walk(_global_step)
 def _lbfgs_direction(integ, ph, x):
     """The global step as the initial inverse Hessian of L-BFGS over this step's pairs (none with
     ``history = 0``); a direction that is no descent direction is retried with the global step
-    alone (local_global.py, ``_lbfgs_finish``)."""
+    alone (fast_mass_spring.py, ``_lbfgs_finish``)."""
     if ti.static(integ.history):
         ph.lbfgs_pair(x)
         for attempt in range(2):
