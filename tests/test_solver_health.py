@@ -9,7 +9,7 @@ import taichi as ti
 
 from taichi_soft.sim.integrators.implicit.health import assess
 from taichi_soft.sim.integrators.implicit.implicit_euler import ImplicitEuler
-from taichi_soft.sim.integrators.implicit.walk import InKernel, Launches, Walk
+from taichi_soft.sim.integrators.implicit.walk import Walk
 
 
 def _ascent_direction(integ, ph, x):
@@ -17,26 +17,12 @@ def _ascent_direction(integ, ph, x):
 
 
 @ti.data_oriented
-class _AscentInKernel(InKernel):
-    @ti.func
-    def ascent(self):
-        self.i._ascent()
-
-
-@ti.data_oriented
-class _AscentLaunches(Launches):
-    @ti.kernel
-    def ascent(self):
-        self.i._ascent()
-
-
-@ti.data_oriented
 class _Uphill(ImplicitEuler):
     """implicit_euler with its Newton direction replaced by an ascent direction (a direction walk
-    of its own, with its phase added to both executors: walk.py)."""
+    of its own, with its phase declared in ``PHASES``: both executors run it, walk.py)."""
 
     DIRECTION = Walk(_ascent_direction)
-    IN_KERNEL, LAUNCHES = _AscentInKernel, _AscentLaunches
+    PHASES = {**ImplicitEuler.PHASES, "ascent": ("_ascent", ())}
 
     @ti.func
     def _ascent(self):

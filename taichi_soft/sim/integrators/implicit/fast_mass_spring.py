@@ -21,7 +21,8 @@ from ..base import MB, model_counts, register, running_target
 from .accounts import contact_stats
 from .driver import ImplicitIntegrator
 from .fast_mass_spring_laplacian import LaplacianMatrix
-from .fast_mass_spring_lbfgs import LBFGS_DIRECTION, LocalGlobalInKernel, LocalGlobalLaunches
+from . import fast_mass_spring_lbfgs
+from .fast_mass_spring_lbfgs import LBFGS_DIRECTION
 from .options import LocalGlobalConfig
 
 
@@ -37,7 +38,7 @@ class FastMassSpring(ImplicitIntegrator):
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(LaplacianMatrix.BUFFERS)  # and its matrix's (fast_mass_spring_laplacian.py)
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
     DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (fast_mass_spring_lbfgs.py)
-    IN_KERNEL, LAUNCHES = LocalGlobalInKernel, LocalGlobalLaunches
+    PHASES = {**ImplicitIntegrator.PHASES, **fast_mass_spring_lbfgs.PHASES}  # and its own phases
 
     @classmethod
     def buffers(cls, options, arch, counts, real_bytes):
