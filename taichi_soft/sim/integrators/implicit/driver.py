@@ -39,7 +39,8 @@ from .restitution import BOUNCE_CG_TOL, BounceSpread
 from .scalars import START_HALVINGS, counters, step_scalars
 from .scheme import SDIRK_GAMMA, StepScheme
 from .step_end import StepEnd
-from .walk import CG_DIRECTION, PHASES, STEP, InKernel, Launches
+from .walk import CG_DIRECTION, STEP, InKernel, Launches
+from .walk import PHASES as SHARED_PHASES
 
 
 @ti.data_oriented
@@ -72,7 +73,7 @@ class ImplicitIntegrator(Integrator):
     Config = ImplicitConfig  # each solver's own extends it (options.py)
     spring_passes_per_step = staticmethod(spring_passes_per_step)  # (accounts.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
-    PHASES = PHASES  # the step's phases, each declared once; run inside a kernel or as launches (walk.py)
+    PHASES = SHARED_PHASES  # the step's phases, each declared once; run inside a kernel or as launches (walk.py)
 
     def __init__(self, model, terrain, options=None, contacts=None):
         # The parts, allocated before the base class's fields (in the same pending SNode tree

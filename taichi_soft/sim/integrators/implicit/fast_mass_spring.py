@@ -21,8 +21,8 @@ from ..base import MB, model_counts, register, running_target
 from .accounts import contact_stats
 from .driver import ImplicitIntegrator
 from .fast_mass_spring_laplacian import LaplacianMatrix
-from . import fast_mass_spring_lbfgs
 from .fast_mass_spring_lbfgs import LBFGS_DIRECTION
+from .fast_mass_spring_lbfgs import PHASES as OWN_PHASES
 from .options import LocalGlobalConfig
 
 
@@ -38,7 +38,7 @@ class FastMassSpring(ImplicitIntegrator):
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(LaplacianMatrix.BUFFERS)  # and its matrix's (fast_mass_spring_laplacian.py)
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
     DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (fast_mass_spring_lbfgs.py)
-    PHASES = {**ImplicitIntegrator.PHASES, **fast_mass_spring_lbfgs.PHASES}  # and its own phases
+    PHASES = {**ImplicitIntegrator.PHASES, **OWN_PHASES}  # and its own (fast_mass_spring_lbfgs.py)
 
     @classmethod
     def buffers(cls, options, arch, counts, real_bytes):
