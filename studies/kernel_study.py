@@ -138,7 +138,7 @@ def main(argv=None) -> int:
 
     runtime.init("cpu", a.precision, fast_math=not a.no_fast_math, cpu_max_num_threads=a.threads,
                  pin_threads=not a.free_threads)
-    from taichi_soft import cpu_threads
+    from taichi_soft.workarounds import cpu_threads
 
     cpu_threads.place(True)  # every kernel here is an explicit step: pinned from the first (unless --free-threads)
     import taichi as ti

@@ -9,7 +9,7 @@ import os
 # runs before any module of the package imports Taichi.
 import taichi as ti
 
-from . import compile_speed, cpu_threads
+from .workarounds import compile_speed, cpu_threads
 from .errors import UserError
 
 ARCHS = ("cpu", "cuda", "vulkan", "metal", "auto")

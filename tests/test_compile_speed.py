@@ -4,7 +4,7 @@ import pytest
 import taichi as ti
 
 from conftest import restart_taichi
-from taichi_soft import compile_speed
+from taichi_soft.workarounds import compile_speed
 
 
 def test_installed_on_the_pinned_taichi():

@@ -61,8 +61,37 @@ def test_from_parts_refuses_what_a_scene_file_refuses():
         assert str(from_parts.value).split(": ", 1)[1] == str(from_file.value).split(": ", 1)[1]
 
 
+def test_a_custom_integrator_runs_and_follows_its_own_order():
+    """A registered drift-kick-drift Verlet is exact for a constant acceleration (the parabola to
+    round-off); symplectic Euler at the same step is off by g h t / 2."""
+    out = _run("custom_integrator.py")
+    rows = {name: (float(t), float(err), float(offset)) for name, t, err, offset in re.findall(
+        r"^(\w+)\s+t = ([0-9.]+) s\s+distance from the parabola ([0-9.e+-]+) m\s+\(g h t / 2 = ([0-9.e+-]+) m\)",
+        out, re.M)}
+    assert set(rows) == {"position_verlet", "semi_implicit_euler"}, out
+    t, err, _ = rows["position_verlet"]
+    assert t == 0.5 and err < 1e-12, out
+    t, err, _ = rows["semi_implicit_euler"]
+    assert err == pytest.approx(9.8 * 1e-3 * t / 2, rel=1e-6), out
+
+
+def test_mesh_body_comes_to_rest_above_the_plane():
+    """The torus lands flat and rests: on the plane y = 0 within the contact layer (1 cm), its
+    half height held up to a small sag, every particle still."""
+    out = _run("mesh_body.py")
+    half = float(re.search(r"half height ([0-9.]+) m", out).group(1))
+    rows = [(float(t), float(low), float(centre), float(speed)) for t, low, centre, speed in re.findall(
+        r"t = ([0-9.]+) s\s+lowest point y = ([-+0-9.]+) m\s+centre y = ([-+0-9.]+) m\s+fastest particle ([0-9.]+)",
+        out)]
+    t, low, centre, speed = rows[-1]
+    assert t == 2.0 and rows[0][2] == 1.0, out
+    assert 0.0 <= low <= 0.011, out
+    assert 0.95 * half < centre - low <= half, out
+    assert speed < 1e-3, out
+
+
 def test_every_example_is_tested():
-    tested = {"drop_cube.py", "compare_integrators.py", "from_parts.py"}
+    tested = {"drop_cube.py", "compare_integrators.py", "from_parts.py", "custom_integrator.py", "mesh_body.py"}
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
 
 

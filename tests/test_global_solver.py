@@ -1,5 +1,5 @@
 """fast_mass_spring's global_solver = by_stiffness: the prefactored matrix on soft springs, Jacobi
-PCG on stiff ones (laplacian.py). A module of its own: each integrator built adds
+PCG on stiff ones (fast_mass_spring_laplacian.py). A module of its own: each integrator built adds
 Taichi field trees, and test_implicit.py's runtime holds as many as Taichi 1.7 allows.
 """
 import numpy as np

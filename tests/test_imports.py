@@ -100,6 +100,20 @@ def test_every_module_imports():
         importlib.import_module(name)
 
 
+def test_each_registered_solver_lives_in_a_module_of_its_name():
+    """A newcomer finds a method by its registered name: each implicit solver is the module of that
+    name (its helpers in modules named for it), the explicit methods, a few lines each, share
+    explicit.py."""
+    from taichi_soft.sim.integrators import REGISTRY
+
+    package = "taichi_soft.sim.integrators"
+    for name, cls in REGISTRY.items():
+        expected = f"{package}.implicit.{name}" if cls.implicit else f"{package}.explicit"
+        assert cls.__module__ == expected, (name, cls.__module__)
+    helpers = [m for m in _modules() if m.startswith(f"{package}.implicit.fast_mass_spring_")]
+    assert helpers, "fast_mass_spring's matrix and L-BFGS modules carry its name"
+
+
 def test_the_graph_reader_sees_relative_and_function_level_imports():
     """The checks below are only as good as the graph: known edges of each kind must be in it."""
     graph = _graph()

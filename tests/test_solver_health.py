@@ -8,8 +8,8 @@ solvers fail no step: tests/test_f32_implicit.py).
 import taichi as ti
 
 from taichi_soft.sim.integrators.implicit.health import assess
-from taichi_soft.sim.integrators.implicit.newton import ImplicitEuler
-from taichi_soft.sim.integrators.implicit.walk import InKernel, Launches, Walk
+from taichi_soft.sim.integrators.implicit.implicit_euler import ImplicitEuler
+from taichi_soft.sim.integrators.implicit.walk import Walk
 
 
 def _ascent_direction(integ, ph, x):
@@ -17,26 +17,12 @@ def _ascent_direction(integ, ph, x):
 
 
 @ti.data_oriented
-class _AscentInKernel(InKernel):
-    @ti.func
-    def ascent(self):
-        self.i._ascent()
-
-
-@ti.data_oriented
-class _AscentLaunches(Launches):
-    @ti.kernel
-    def ascent(self):
-        self.i._ascent()
-
-
-@ti.data_oriented
 class _Uphill(ImplicitEuler):
     """implicit_euler with its Newton direction replaced by an ascent direction (a direction walk
-    of its own, with its phase added to both executors: walk.py)."""
+    of its own, with its phase declared in ``PHASES``: both executors run it, walk.py)."""
 
     DIRECTION = Walk(_ascent_direction)
-    IN_KERNEL, LAUNCHES = _AscentInKernel, _AscentLaunches
+    PHASES = {**ImplicitEuler.PHASES, "ascent": ("_ascent", ())}
 
     @ti.func
     def _ascent(self):
@@ -110,3 +96,24 @@ def test_unconverged_steps_are_counted_and_said_when_they_are_most():
     lines, meaningless = assess({**stats, "unconverged_steps": int(UNCONVERGED_WARN_SHARE * 10)})
     assert len(lines) == 1 and "5 of 10 steps ended with a residual above 10x" in lines[0] and not meaningless
     assert assess({**stats, "unconverged_steps": 4}) == ([], False)
+
+
+def test_a_phase_of_its_own_runs_alike_in_both_drivers():
+    """The ascent phase is declared once (``PHASES``) and both executors run it: the serial driver
+    inlined in its kernel, the parallel one as a launch of its own. Both fail every step and reach
+    the same state."""
+    import numpy as np
+
+    from physics_helpers import build
+
+    model, terrain = build(n=3, initial_stretch=(1.2, 0.9, 1.0))
+    out = []
+    for mode in ("serial", "parallel"):
+        integ = _Uphill(model, terrain, {"mode": mode})
+        assert integ.options.mode == mode
+        state = model.state()
+        assert integ.advance(state, 0.01, 4) == 4
+        assert integ.stats()["failed_solve_steps"] == 4
+        out.append(state.numpy())
+    assert np.abs(out[0][0] - out[1][0]).max() < 1e-9  # [m]
+    assert np.abs(out[0][1] - out[1][1]).max() < 1e-7  # [m/s]: (x - x_n) / h

@@ -67,7 +67,7 @@ def thread_overlap(task_ms=(0.3, 1.0, 3.0, 10.0), repeats=21) -> list[dict]:
     runtime allows it): unpinned, the second worker joined late (-0.02 to 0.19 at 1 ms on the 2-core
     development VM), pinned 0.9-1.0 (cpu_threads.py).
     """
-    from .. import cpu_threads
+    from ..workarounds import cpu_threads
 
     cpu_threads.place(True)
     spin, arg = _overlap_kernel()

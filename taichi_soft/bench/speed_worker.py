@@ -24,7 +24,8 @@ class _Stepper:
     def __init__(self, spec: dict):
         import numpy as np
 
-        from .. import cpu_threads, runtime
+        from .. import runtime
+        from ..workarounds import cpu_threads
 
         kind, precision = spec["kind"], spec["precision"]
         init_kw = {"pin_threads": runtime.PIN_THREADS_CLI_DEFAULT}  # what the command line's runs get

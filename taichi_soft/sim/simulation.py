@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import cpu_threads, runtime
+from .. import runtime
+from ..workarounds import cpu_threads
 from .allocation import check_tree_room
 from .bodies import BodySpec
 from .builder import ModelBuilder

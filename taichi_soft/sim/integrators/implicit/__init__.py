@@ -9,15 +9,16 @@ local/global (``fast_mass_spring``), both minimising the step's objective (docs/
 * ``objective``: inertia, springs, dampers and friction: values and gradient;
 * parts given what they read at construction: ``contact`` (the terrain's feasible start, active
   set with hysteresis, frozen friction and restitution), ``restitution`` (the bounce spread
-  through the body), ``scheme`` (backward Euler or BDF2 per step) and ``laplacian`` (the constant
+  through the body), ``scheme`` (backward Euler or BDF2 per step) and ``fast_mass_spring_laplacian`` (the constant
   matrix M + L and its skyline Cholesky factor); ``pairs`` (contact between bodies: candidate
   pairs, penalty, friction, restitution) is built with its owner and reads the owner's step fields;
-* ``newton``: ``implicit_euler`` (its Hessian blocks as a part, the PCG operator);
-* ``local_global``: ``fast_mass_spring`` (the global step with the matrix, L-BFGS, ``lbfgs_walk``).
+* ``implicit_euler``: that solver, Newton + PCG (its Hessian blocks as a part, the PCG operator);
+* ``fast_mass_spring``: that solver, local/global (the global step with the matrix of
+  ``fast_mass_spring_laplacian``, L-BFGS over it in ``fast_mass_spring_lbfgs``).
 """
 from .driver import ImplicitIntegrator
-from .laplacian import CHOLESKY_AUTO_MAX
-from .local_global import FastMassSpring
-from .newton import ImplicitEuler
+from .fast_mass_spring import FastMassSpring
+from .fast_mass_spring_laplacian import CHOLESKY_AUTO_MAX
+from .implicit_euler import ImplicitEuler
 
 __all__ = ["ImplicitIntegrator", "ImplicitEuler", "FastMassSpring", "CHOLESKY_AUTO_MAX"]

@@ -40,6 +40,7 @@ from .scalars import START_HALVINGS, counters, step_scalars
 from .scheme import SDIRK_GAMMA, StepScheme
 from .step_end import StepEnd
 from .walk import CG_DIRECTION, STEP, InKernel, Launches
+from .walk import PHASES as SHARED_PHASES
 
 
 @ti.data_oriented
@@ -50,10 +51,11 @@ class ImplicitIntegrator(Integrator):
     (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``DIRECTION``
     (a ``walk.Walk``: dx from rhs at the iterate x; by default the PCG solve) and ``Config`` (an
     ``options.ImplicitConfig``: its ``residual_tol`` and ``max_iterations`` stop the iterations). A
-    solver whose direction has phases of its own extends ``IN_KERNEL`` and ``LAUNCHES`` with them.
+    solver whose direction has phases of its own adds them to ``PHASES`` (walk.py: name -> its
+    ti.func and argument kinds); both executors are generated from that table.
 
     Fields: a solver declares those of a fixed size in ``BUFFERS`` (the base class allocates them)
-    or, for a part it builds (``newton.SpringHessian``, ``laplacian.LaplacianMatrix``), adds the
+    or, for a part it builds (``implicit_euler.SpringHessian``, ``fast_mass_spring_laplacian.LaplacianMatrix``), adds the
     part's table to ``FIELDS``; those whose size depends on its options (a factor, L-BFGS pairs) it
     allocates in ``__init__`` before calling this one's, and declares them in ``buffers``. (Fields
     allocated together, with no kernel launch or field access between them, share one Taichi SNode
@@ -71,7 +73,7 @@ class ImplicitIntegrator(Integrator):
     Config = ImplicitConfig  # each solver's own extends it (options.py)
     spring_passes_per_step = staticmethod(spring_passes_per_step)  # (accounts.py)
     DIRECTION = CG_DIRECTION  # the search direction's walk (walk.py)
-    IN_KERNEL, LAUNCHES = InKernel, Launches  # the phases, inside a kernel and as launches (walk.py)
+    PHASES = SHARED_PHASES  # the step's phases, each declared once; run inside a kernel or as launches (walk.py)
 
     def __init__(self, model, terrain, options=None, contacts=None):
         # The parts, allocated before the base class's fields (in the same pending SNode tree
@@ -119,8 +121,8 @@ class ImplicitIntegrator(Integrator):
                 self.end.clamp_on: o.energy_clamp and not np.any(model.mass_np <= 0),
                 self.contact.release_tol: max(o.residual_tol, 0.1)})
         self._masses_changed = True  # (notify_model_changed) total mass and translation test to refresh
-        self.in_kernel = self.IN_KERNEL(self)  # the serial driver's phases
-        self.launches = self.LAUNCHES(self)  # the parallel driver's
+        self.in_kernel = InKernel(self)  # the serial driver's phases
+        self.launches = Launches(self)  # the parallel driver's
 
     # Body-body contact lives inside the step (pairs.py): ``contacts`` given at construction
     # (Simulation gives its own, for a scene with several bodies) builds the pair terms; None builds
@@ -144,7 +146,7 @@ class ImplicitIntegrator(Integrator):
     @ti.func
     def _grab_factored(self, i):
         """Whether the solver's matrix already carries the grab on particle i (fast_mass_spring's
-        factor does, local_global.py); otherwise a grabbed particle counts as held (objective.py)."""
+        factor does, fast_mass_spring.py); otherwise a grabbed particle counts as held (objective.py)."""
         return False
 
     @ti.func
@@ -208,6 +210,19 @@ class ImplicitIntegrator(Integrator):
         self.accounts.begin_step()
         # Phase 0 evaluates the reference g(x_n) and E(x_n): one trial at alpha = 0.
         self._line_search_begin(0.0, 0)
+
+    # -- the iteration's phases: the work and its decision -------------------------------------------
+    @ti.func
+    def _gradient(self, x: ti.template(), dt):
+        """The gradient at x (and the linear operator's data), then the decision on it."""
+        self.objective.gradient(x, dt)
+        self._after_gradient(dt)
+
+    @ti.func
+    def _trial(self, x: ti.template(), dt):
+        """g at the line search's trial point, then Armijo's decision on it."""
+        self.objective.trial(x, dt)
+        self._line_search_decide()
 
     # -- decisions ----------------------------------------------------------------------------------
     @ti.func

@@ -10,7 +10,7 @@ from typing import ClassVar
 
 from ..base import SERIAL_MAX_PARTICLES, IntegratorConfig
 from ..options import choice, flag, int_at_least, number_in, option
-from .laplacian import cholesky_pays
+from .fast_mass_spring_laplacian import cholesky_pays
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,7 @@ class LocalGlobalConfig(ImplicitConfig):
     max_iterations = property(lambda self: self.iterations)
 
     def resolve(self, arch, fast_math, counts) -> "LocalGlobalConfig":
-        """``global_solver = auto``: cholesky where it pays (``laplacian.cholesky_pays``), else pcg."""
+        """``global_solver = auto``: cholesky where it pays (``fast_mass_spring_laplacian.cholesky_pays``), else pcg."""
         out = super().resolve(arch, fast_math, counts)
         if out.global_solver == "auto":
             out = out.but(global_solver="cholesky" if cholesky_pays(arch, counts) else "pcg")

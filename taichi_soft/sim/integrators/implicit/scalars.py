@@ -63,7 +63,7 @@ STEP_INTS = {
     "phase": "0: reference at x_n, 1: feasible start, 2: iterating",
     "clamped": "1: the energy clamp acted on this step",
     "bounce_limited": "1: restitution was scaled down to the energy the step lost",
-    # fast_mass_spring's L-BFGS history (local_global.py)
+    # fast_mass_spring's L-BFGS history (fast_mass_spring.py)
     "lb_count": "pairs (s, y) kept",
     "lb_head": "slot the next pair goes to",
     "lb_updates": "friction refreezes (updates) when the last direction was taken",

@@ -1,24 +1,49 @@
-"""The implicit step's control flow, written once, and the two ways it runs.
+"""The implicit step's control flow and its phases, each written once, and the two ways they run.
 
 A step (docs/implicit.md) is a sequence of phases: begin; the reference g(x_n) and the feasible
 start (line searches without a direction); iterations of gradient and decision, search direction,
 line search (trial and decision), accept; end (velocities, the restitution spread, finish). Every
-decision is a ti.func that writes the step's scalars (``sc``: scalars.py). ``step`` below is
-the sequence as plain Python control flow over those scalars, and it runs from this one source:
+decision is a ti.func that writes the step's scalars (``sc``: scalars.py).
 
-* inside a kernel (the serial driver: one launch runs many steps on one thread):
-  ``STEP.func = ti.func(step)`` with ``InKernel`` phases, each an inlined ti.func call;
-* from Python scope (the parallel driver): ``STEP.py = step`` with ``Launches`` phases, each a
-  kernel launch whose loops over particles and springs run in parallel; each scalar read is a
-  device sync.
+* ``PHASES`` declares each phase once: its name, the integrator's ti.func that does its work and
+  the kinds of that function's arguments. A solver with phases of its own (fast_mass_spring's
+  factor solve and L-BFGS) adds them to its class's ``PHASES``.
+* ``step`` below is the sequence as plain Python control flow over the scalars, calling phases by
+  name on an executor ``ph``. It runs from this one source:
 
-``InKernel`` and ``Launches`` implement the same phase list, one line each. A solver's own
-sequences (its search direction: ``DIRECTION``) are walks too and call the same executors (a
-solver with phases of its own extends both classes), so the two drivers take the same decisions
-by construction, not by keeping two copies alike.
+  - inside a kernel (the serial driver: one launch runs many steps on one thread):
+    ``STEP.func = ti.func(step)`` with ``InKernel``, whose phase ``name`` is the declared ti.func
+    itself, inlined at the call site;
+  - from Python scope (the parallel driver): ``STEP.py = step`` with ``Launches``, whose phase
+    ``name`` is one kernel launch of the declared ti.func (one compiled kernel per phase), its
+    loops over particles and springs parallel; each scalar read is a device sync.
+
+Both executors are generated from the declaration, so the two drivers take the same decisions by
+construction, not by keeping copies alike. Only the two entries that are no single ti.func are
+written per executor: ``walk`` (a sequence within the step: a solver's ``DIRECTION``) and ``cg``
+(the linear solve: one loop inside the kernel, one launch per CG iteration from Python).
 """
 
 import taichi as ti
+
+# The kinds of a phase's arguments: a field (a template argument), a real (a time [s]), a count
+# (an index: the step, an L-BFGS pair).
+FIELD, REAL, COUNT = "field", "real", "count"
+
+# The shared phases: name -> (the ti.func that does the work, as an attribute path from the
+# integrator; the kinds of its arguments, in order).
+PHASES = {
+    "begin": ("_begin_step", (FIELD, FIELD, REAL)),  # x, v, dt
+    "gradient": ("_gradient", (FIELD, REAL)),  # x, h
+    "after_direction": ("_after_direction", ()),
+    "pairs_check": ("pairs.check", ()),
+    "pairs_regather": ("pairs.regather", ()),
+    "trial": ("_trial", (FIELD, REAL)),  # x, h
+    "accept": ("_accept", (FIELD,)),  # x
+    "end_velocities": ("end.velocities", (FIELD, REAL)),  # x, h
+    "bounce_rhs": ("_bounce_rhs", ()),
+    "end_finish": ("end.finish", (FIELD, FIELD, COUNT)),  # x, v, step
+}
 
 
 class Walk:
@@ -79,46 +104,38 @@ def _cg_direction(integ, ph, x):
 CG_DIRECTION = Walk(_cg_direction)
 
 
+def _work(integ, name: str):
+    """The ti.func phase ``name`` of ``integ.PHASES`` names, bound to its owner (the integrator or
+    one of its parts, looked up when called: a part such as ``pairs`` may be set after
+    construction)."""
+    owner = integ
+    *parts, attr = integ.PHASES[name][0].split(".")
+    for part in parts:
+        owner = getattr(owner, part)
+    return getattr(owner, attr)
+
+
+def _is_phase(executor, name: str) -> bool:
+    integ = executor.__dict__.get("i")
+    return integ is not None and not name.startswith("_") and name in integ.PHASES
+
+
 @ti.data_oriented
 class InKernel:
-    """The phases as ti.funcs, for ``STEP.func`` inside the serial driver's kernel."""
+    """The phases as ti.funcs, for ``STEP.func`` inside the serial driver's kernel: ``ph.name(...)``
+    is the declared ti.func itself."""
 
     def __init__(self, integ):
         self.i = integ
 
+    def __getattr__(self, name):
+        if not _is_phase(self, name):
+            raise AttributeError(name)
+        return _work(self.i, name)
+
     @ti.func
     def walk(self, w: ti.template(), x: ti.template()):
         w.func(self.i, self, x)
-
-    @ti.func
-    def begin(self, x: ti.template(), v: ti.template(), dt):
-        self.i._begin_step(x, v, dt)
-
-    @ti.func
-    def gradient(self, x: ti.template(), dt):
-        self.i.objective.gradient(x, dt)
-        self.i._after_gradient(dt)
-
-    @ti.func
-    def after_direction(self):
-        self.i._after_direction()
-
-    @ti.func
-    def pairs_check(self):
-        self.i.pairs.check()
-
-    @ti.func
-    def pairs_regather(self):
-        self.i.pairs.regather()
-
-    @ti.func
-    def trial(self, x: ti.template(), dt):
-        self.i.objective.trial(x, dt)
-        self.i._line_search_decide()
-
-    @ti.func
-    def accept(self, x: ti.template()):
-        self.i._accept(x)
 
     @ti.func
     def cg(self, b: ti.template(), out: ti.template()):
@@ -126,58 +143,37 @@ class InKernel:
         self.i.pcg.solve(self.i, b, out, self.i.cg_iters[None])
         self.i.sc.cg[None] += self.i.pcg.iters[None]
 
-    @ti.func
-    def end_velocities(self, x: ti.template(), dt):
-        self.i.end.velocities(x, dt)
-
-    @ti.func
-    def bounce_rhs(self):
-        self.i._bounce_rhs()
-
-    @ti.func
-    def end_finish(self, x: ti.template(), v: ti.template(), step):
-        self.i.end.finish(x, v, step)
-
 
 @ti.data_oriented
 class Launches:
-    """The phases as kernel launches, for ``STEP.py`` from Python scope (the parallel driver)."""
+    """The phases as kernel launches, for ``STEP.py`` from Python scope (the parallel driver):
+    ``ph.name(...)`` launches ``_phase``, compiled once per phase (and per field it is given)."""
 
     def __init__(self, integ):
         self.i = integ
 
+    def __getattr__(self, name):
+        if not _is_phase(self, name):
+            raise AttributeError(name)
+        kinds = self.i.PHASES[name][1]
+
+        def launch(*args):
+            fields = tuple(a for a, kind in zip(args, kinds) if kind == FIELD)
+            real = next((a for a, kind in zip(args, kinds) if kind == REAL), 0.0)
+            count = next((a for a, kind in zip(args, kinds) if kind == COUNT), 0)
+            self._phase(name, fields, real, count)
+
+        self.__dict__[name] = launch  # built once per phase
+        return launch
+
+    @ti.kernel
+    def _phase(self, name: ti.template(), fields: ti.template(), real: float, count: ti.i32):
+        work = ti.static(_work(self.i, name))
+        args = ti.static(_arguments(self.i.PHASES[name][1], fields, real, count))
+        work(*args)
+
     def walk(self, w, x):
         w.py(self.i, self, x)
-
-    @ti.kernel
-    def begin(self, x: ti.template(), v: ti.template(), dt: float):
-        self.i._begin_step(x, v, dt)
-
-    @ti.kernel
-    def gradient(self, x: ti.template(), dt: float):
-        self.i.objective.gradient(x, dt)
-        self.i._after_gradient(dt)
-
-    @ti.kernel
-    def after_direction(self):
-        self.i._after_direction()
-
-    @ti.kernel
-    def pairs_check(self):
-        self.i.pairs.check()
-
-    @ti.kernel
-    def pairs_regather(self):
-        self.i.pairs.regather()
-
-    @ti.kernel
-    def trial(self, x: ti.template(), dt: float):
-        self.i.objective.trial(x, dt)
-        self.i._line_search_decide()
-
-    @ti.kernel
-    def accept(self, x: ti.template()):
-        self.i._accept(x)
 
     def cg(self, b, out):
         """The same solve, one launch per CG iteration."""
@@ -187,14 +183,10 @@ class Launches:
     def _add_cg(self, iters: ti.i32):
         self.i.sc.cg[None] += iters
 
-    @ti.kernel
-    def end_velocities(self, x: ti.template(), dt: float):
-        self.i.end.velocities(x, dt)
 
-    @ti.kernel
-    def bounce_rhs(self):
-        self.i._bounce_rhs()
-
-    @ti.kernel
-    def end_finish(self, x: ti.template(), v: ti.template(), step: ti.i32):
-        self.i.end.finish(x, v, step)
+def _arguments(kinds, fields, real, count) -> tuple:
+    """A phase's arguments in its declared order, from a launch's fields, real and count."""
+    out, rest = [], iter(fields)
+    for kind in kinds:
+        out.append(next(rest) if kind == FIELD else real if kind == REAL else count)
+    return tuple(out)

@@ -1,12 +1,13 @@
 """``fast_mass_spring``'s search direction as walks (walk.py): the global step, and L-BFGS over it.
 
 Its phases beyond the shared ones (the factor's solve, the scaled contact step, the L-BFGS
-two-loop recursion: ti.funcs of local_global.py) extend both executors, one line each.
+two-loop recursion: ti.funcs of fast_mass_spring.py) are declared in ``PHASES``, one line each;
+both executors are generated from it.
 """
 
 import taichi as ti
 
-from .walk import InKernel, Launches, Walk
+from .walk import COUNT, FIELD, Walk
 
 
 def _global_step(integ, ph, x):
@@ -32,7 +33,7 @@ GLOBAL_STEP = Walk(_global_step)
 def _lbfgs_direction(integ, ph, x):
     """The global step as the initial inverse Hessian of L-BFGS over this step's pairs (none with
     ``history = 0``); a direction that is no descent direction is retried with the global step
-    alone (local_global.py, ``_lbfgs_finish``)."""
+    alone (fast_mass_spring.py, ``_lbfgs_finish``)."""
     if ti.static(integ.history):
         ph.lbfgs_pair(x)
         for attempt in range(2):
@@ -52,55 +53,13 @@ def _lbfgs_direction(integ, ph, x):
 LBFGS_DIRECTION = Walk(_lbfgs_direction)
 
 
-@ti.data_oriented
-class LocalGlobalInKernel(InKernel):
-    @ti.func
-    def factor_solve(self, b: ti.template(), out: ti.template()):
-        self.i._factor_solve(b, out)
-
-    @ti.func
-    def scaled_direction(self):
-        self.i._scaled_direction()
-
-    @ti.func
-    def lbfgs_pair(self, x: ti.template()):
-        self.i._lbfgs_pair(x)
-
-    @ti.func
-    def lbfgs_first(self, j):
-        self.i._lbfgs_first(j)
-
-    @ti.func
-    def lbfgs_second(self, j):
-        self.i._lbfgs_second(j)
-
-    @ti.func
-    def lbfgs_finish(self):
-        self.i._lbfgs_finish()
-
-
-@ti.data_oriented
-class LocalGlobalLaunches(Launches):
-    @ti.kernel
-    def factor_solve(self, b: ti.template(), out: ti.template()):
-        self.i._factor_solve(b, out)
-
-    @ti.kernel
-    def scaled_direction(self):
-        self.i._scaled_direction()
-
-    @ti.kernel
-    def lbfgs_pair(self, x: ti.template()):
-        self.i._lbfgs_pair(x)
-
-    @ti.kernel
-    def lbfgs_first(self, j: ti.i32):
-        self.i._lbfgs_first(j)
-
-    @ti.kernel
-    def lbfgs_second(self, j: ti.i32):
-        self.i._lbfgs_second(j)
-
-    @ti.kernel
-    def lbfgs_finish(self):
-        self.i._lbfgs_finish()
+# fast_mass_spring's own phases, added to the shared ones (walk.py): name -> (its ti.func in
+# fast_mass_spring.py; the kinds of its arguments).
+PHASES = {
+    "factor_solve": ("_factor_solve", (FIELD, FIELD)),  # b, out
+    "scaled_direction": ("_scaled_direction", ()),
+    "lbfgs_pair": ("_lbfgs_pair", (FIELD,)),  # x
+    "lbfgs_first": ("_lbfgs_first", (COUNT,)),  # the pair j
+    "lbfgs_second": ("_lbfgs_second", (COUNT,)),  # the pair j
+    "lbfgs_finish": ("_lbfgs_finish", ()),
+}

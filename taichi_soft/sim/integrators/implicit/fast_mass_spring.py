@@ -9,7 +9,7 @@ stiffness, a damper coefficient or a mass changes. Under contact the global step
 one solve with that factorisation and one block-Jacobi smoothing step, filtered (held particles
 keep their normal component) and scaled by the step's quadratic model
 (``contact_solve = "scaled"``), or the filtered system solved by PCG preconditioned by the
-factorisation (``"pcg"``); ``"auto"`` picks by the springs' stiffness at the step (laplacian.py). The global step is a descent direction of g
+factorisation (``"pcg"``); ``"auto"`` picks by the springs' stiffness at the step (fast_mass_spring_laplacian.py). The global step is a descent direction of g
 (M + L is SPD), so the shared driver's line search keeps g(x_k) <= g(x_n) at every iterate, and
 its stopping tests apply as for Newton.
 """
@@ -20,8 +20,9 @@ from ...footprint import MAT, Buffers, FieldCounts, per_particle
 from ..base import MB, model_counts, register, running_target
 from .accounts import contact_stats
 from .driver import ImplicitIntegrator
-from .laplacian import LaplacianMatrix
-from .lbfgs_walk import LBFGS_DIRECTION, LocalGlobalInKernel, LocalGlobalLaunches
+from .fast_mass_spring_laplacian import LaplacianMatrix
+from .fast_mass_spring_lbfgs import LBFGS_DIRECTION
+from .fast_mass_spring_lbfgs import PHASES as OWN_PHASES
 from .options import LocalGlobalConfig
 
 
@@ -34,10 +35,10 @@ class FastMassSpring(ImplicitIntegrator):
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
     Config = LocalGlobalConfig
     BUFFERS = {"jacobi_inv": per_particle("block-Jacobi inverses of a Jacobi-preconditioned solve [1/kg]", MAT)}
-    FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(LaplacianMatrix.BUFFERS)  # and its matrix's (laplacian.py)
+    FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(LaplacianMatrix.BUFFERS)  # and its matrix's (fast_mass_spring_laplacian.py)
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
-    DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (lbfgs_walk.py)
-    IN_KERNEL, LAUNCHES = LocalGlobalInKernel, LocalGlobalLaunches
+    DIRECTION = LBFGS_DIRECTION  # L-BFGS over the global step (fast_mass_spring_lbfgs.py)
+    PHASES = {**ImplicitIntegrator.PHASES, **OWN_PHASES}  # and its own (fast_mass_spring_lbfgs.py)
 
     @classmethod
     def buffers(cls, options, arch, counts, real_bytes):
@@ -64,7 +65,7 @@ class FastMassSpring(ImplicitIntegrator):
         self.grab_w_for = ti.field(ti.i32, ())  # the particle w is for (grab.NONE: none)
         self.grab_w_for[None] = -1
         self._grab_w_key = None
-        # L-BFGS within a step (fixed at construction: a compile-time constant), see lbfgs_walk.py.
+        # L-BFGS within a step (fixed at construction: a compile-time constant), see fast_mass_spring_lbfgs.py.
         self.history = chosen.history
         if self.history:
             self.lb_s = ti.Vector.field(3, float, (n, self.history))  # x_{k+1} - x_k [m]
