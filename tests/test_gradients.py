@@ -216,13 +216,7 @@ def test_fit_command_refuses_bad_marker_csv(cli, tmp_path):
              ("0,0,0,0,0\n0,0,1,0,0\n", "second time"),
              ("time,particle,x,y,z\n", "no marker rows"),
              ("0,99,0,0,0\n", "particle 99")]
-    for k, (text, words) in enumerate(cases):
-        path = tmp_path / f"bad{k}.csv"
-        path.write_text(text)
-        p = cli("fit", *FREE, "--target", str(path), "--params", "k_stretch")
-        assert p.returncode == 2, (text, p.stderr)
-        lines = p.stderr.strip().splitlines()
-        assert len(lines) == 1 and words in lines[0], (text, p.stderr)
+    _each_refused(cli, tmp_path, FREE, cases)
 
 
 def rest_shape(spec):
@@ -328,10 +322,15 @@ def test_fit_command_refuses_bad_rest_point_csv(cli, tmp_path):
              ("0,0,0,0,1,1,1\n0,0,0,0,2,2,2\n", "second time"),
              ("0,0,0,0,1,1,1\n0,0,0,3,1,1,1\n", "outside"),
              ("0,0,0,0,1,1,1,1\n", "not 5 or 7")]
+    _each_refused(cli, tmp_path, ROTATED, cases)
+
+
+def _each_refused(cli, tmp_path, scene_args, cases):
+    """Each (CSV text, words) target is refused by ``fit`` with exit 2 and one line naming the fault."""
     for k, (text, words) in enumerate(cases):
         path = tmp_path / f"bad{k}.csv"
         path.write_text(text)
-        p = cli("fit", *ROTATED, "--target", str(path), "--params", "k_stretch")
+        p = cli("fit", *scene_args, "--target", str(path), "--params", "k_stretch")
         assert p.returncode == 2, (text, p.stderr)
         lines = p.stderr.strip().splitlines()
         assert len(lines) == 1 and words in lines[0], (text, p.stderr)
