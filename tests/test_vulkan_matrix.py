@@ -1,0 +1,76 @@
+"""The GPU code path on every machine: the explicit methods (each force pass) and the implicit
+solvers on Vulkan (Mesa's lavapipe runs it on the CPU here), f32, against the CPU backend, on a
+small deformed, spinning cube thrown onto the plane. On Vulkan every loop is a parallel launch, the
+scatter's sums are atomics and the solvers' iteration tests are read back from the device; the
+CPU runs are forced to the same parallel launches (a cube this small would run serial there) and
+the same global solver, so the two backends run one algorithm and any difference is the backend's.
+
+All cases run in one child process (Taichi's backend is per process; tests/backend_probe.py), which
+fails the test, not skips it, where Vulkan is missing: ``runtime.init`` refuses a backend Taichi
+would replace by the CPU, and the arch Taichi really started is checked.
+"""
+import numpy as np
+
+from backend_probe import run_on_backends
+from taichi_soft.sim.integrators import REGISTRY
+
+G = 9.8  # [m/s^2], the plane scene's gravity
+PLANE_Y = -1.0  # [m], the plane scene's terrain
+N = 5
+VY = -3.0  # [m/s], the throw's vertical speed
+# The deformed cube's lowest point lies 3.0986 m below its centre (size 4 m, the scene's 30 degree
+# turn, the stretch below): its centre 5 mm above that puts it on the plane in the first 2 ms.
+SETS = [f"body.0.n={N}", "body.0.initial_stretch=[1.2,0.85,1.1]", "body.0.center=[0.0,2.1036,0.0]",
+        f"body.0.velocity=[1.0,{VY},0.0]", "body.0.angular_velocity=[0.0,2.0,0.0]"]
+EXPLICIT_DT, EXPLICIT_STEPS = 1e-3, 40  # [s]
+IMPLICIT_DT, IMPLICIT_STEPS = 1.0 / 30.0, 20  # [s]: the implicit solvers' usual step, 0.67 s with the landing
+# Explicit methods: the same f32 operations in the same order on both backends, the scatter's atomic
+# sums aside, whose order a GPU may change (lavapipe agreed bit for bit when this was written). A few
+# ulps per step of positions near 1-3 m (an ulp is 1.2e-7-2.4e-7 m) over 40 steps stay far below it.
+EXPLICIT_TOL = 1e-5  # [m]
+# Implicit solvers: their reductions (CG dot products, residual norms) are parallel sums whose order
+# is the backend's, so each iterate differs by rounding, and an iteration test near its threshold
+# may stop one iteration sooner or later on one backend; that moves a step's end by up to
+# velocity_tol * h = 3.3e-5 m (1e-3 m/s at 1/30 s). The issue's bound, 1e-4 m after the landing,
+# allows that about three times (both agreed to 3e-6 m when this was written).
+IMPLICIT_TOL = 1e-4  # [m]
+
+CPU_PARALLEL = {"cpu": {"mode": "parallel"}}
+# Every force pass under the one-stage method; under the four-stage one the atomic scatter and the
+# stencil (its stage kernels read the pass as the others do); velocity Verlet's damper corrector.
+CASES = [dict(sets=SETS, integrator=name, dt=EXPLICIT_DT, steps=EXPLICIT_STEPS, options={"forces": forces},
+              options_by_arch=CPU_PARALLEL)
+         for name, passes in (("semi_implicit_euler", ("gather", "scatter", "stencil")),
+                              ("rk4", ("scatter", "stencil")), ("velocity_verlet", ("gather",)))
+         for forces in passes]
+CASES += [dict(sets=SETS, integrator="implicit_euler", dt=IMPLICIT_DT, steps=IMPLICIT_STEPS, options={},
+               options_by_arch=CPU_PARALLEL),
+          # the CPU would factorise this small cube's matrix; Vulkan picks the matrix-free PCG by itself
+          dict(sets=SETS, integrator="fast_mass_spring", dt=IMPLICIT_DT, steps=IMPLICIT_STEPS, options={},
+               options_by_arch={"cpu": {"mode": "parallel", "global_solver": "pcg"}})]
+
+
+def test_every_integrator_on_vulkan_matches_the_cpu():
+    """Each case's positions on Vulkan within EXPLICIT_TOL (IMPLICIT_TOL) of the CPU's; Vulkan chose
+    parallel launches (and PCG) by itself; every run finished undiverged, the plane held the cube
+    (free fall would carry its lowest point 0.12 m below the plane in 40 ms) and it moved."""
+    out = run_on_backends(CASES, ("vulkan", "cpu"))
+    for case, gpu, cpu in zip(CASES, out["vulkan"], out["cpu"]):
+        label = f"{case['integrator']} {case['options']}"
+        assert gpu["arch"] == gpu["started"] == "vulkan", (label, gpu["started"])
+        assert cpu["arch"] == "cpu"
+        assert gpu["options"]["mode"] == cpu["options"]["mode"] == "parallel", label
+        assert gpu["strategy"] == cpu["strategy"] == case["options"].get("forces"), label
+        if case["integrator"] == "fast_mass_spring":
+            assert gpu["options"]["global_solver"] == cpu["options"]["global_solver"] == "pcg"
+        for run in (gpu, cpu):
+            assert run["steps"] == case["steps"] and not run["diverged"], label
+            assert run["stats"].get("failed_solve_steps", 0) == 0, (label, run["stats"])
+        x_gpu, x_cpu, x0 = (np.array(r) for r in (gpu["x"], cpu["x"], cpu["x0"]))
+        tol = IMPLICIT_TOL if REGISTRY[case["integrator"]].implicit else EXPLICIT_TOL
+        assert np.abs(x_gpu - x_cpu).max() <= tol, (label, np.abs(x_gpu - x_cpu).max())
+        t = case["dt"] * case["steps"]
+        free_fall_low = x0[:, 1].min() + VY * t - G * t * t / 2
+        assert free_fall_low < PLANE_Y - 0.1
+        assert x_cpu[:, 1].min() >= PLANE_Y - 1e-4, label  # the terrain's contact acted
+        assert np.abs(x_cpu - x0).max() > 0.1, label
