@@ -8,7 +8,9 @@ instead of passing as two CPU runs.
 
 A case is a dict: ``scene``, ``sets`` (``--set`` overrides), ``integrator``, ``dt`` [s], ``steps``,
 ``options`` (the integrator's options on every backend) and ``options_by_arch`` (arch -> options
-laid over them, e.g. the CPU's launch mode forced to what a GPU picks by itself). Per backend and
+laid over them, e.g. the CPU's launch mode forced to what a GPU picks by itself) ``fast_math``
+(the runtime's, default false) and ``bad_velocity`` (a value, such as "nan", given to one
+particle's velocity before the first step, for the divergence check). Per backend and
 case the child returns the arch asked for and the one started, the force strategy (None for the
 implicit solvers), the resolved options, the integrator's ``stats()``, the final and initial
 positions [m], whether the run diverged, and the wall time [s] of the set-up (the runtime's start
@@ -34,10 +36,14 @@ for arch in archs:
     out[arch] = []
     for case in cases:
         t0 = time.perf_counter()
-        runtime.init(arch, "f32")
+        runtime.init(arch, "f32", fast_math=case.get("fast_math", False))
         options = {**case.get("options", {}), **case.get("options_by_arch", {}).get(arch, {})}
         sim = Simulation(load_scene(case.get("scene", "plane"), case.get("sets", [])), integrator=case["integrator"],
                          dt=case["dt"], options=options)
+        if case.get("bad_velocity") is not None:
+            x, v = sim.state.numpy()
+            v[5, 1] = float(case["bad_velocity"])
+            sim.state.set(x, v)
         t1 = time.perf_counter()
         done = sim.advance(case["steps"])
         t2 = time.perf_counter()
