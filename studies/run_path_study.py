@@ -12,7 +12,7 @@ parallel step finds the thread pool's workers), the summary. Then, in the same p
 same simulation, interleaved (taichi_soft.timing: medians): ``advance`` of a fixed chunk from the
 start (the kernel, as ``bench speed`` times it), the same through ``Simulation.run`` with the
 command line's progress callback, and the kernel on the equal-settings study's scene (no terrain,
-started stretched). Prints one JSON line. Results: docs/benchmarks/speed/SPEED.md.
+started stretched). Prints one JSON line. Results: docs/benchmarks/STENCIL.md.
 """
 import json
 import sys
@@ -101,7 +101,7 @@ def main(n: int, duration: float, repeats: int = 7, cold: bool = False) -> dict:
         "kernel": Candidate(run=lambda: sim.advance(chunk), setup=sim.reset, warmup=lambda: sim.advance(2)),
         "via_run": Candidate(run=lambda: sim.run(chunk * sim.dt, 30, progress=lambda d, t, s: None), setup=sim.reset,
                              warmup=lambda: sim.advance(2)),
-        "kernel_study_scene": Candidate(run=lambda: ref.advance(chunk), setup=ref.reset,
+        "equal_settings_scene": Candidate(run=lambda: ref.advance(chunk), setup=ref.reset,
                                         warmup=lambda: ref.advance(2)),
     }
     res = time_candidates(cands, repeats)
