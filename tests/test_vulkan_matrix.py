@@ -7,6 +7,10 @@ the same global solver, so the two backends run one algorithm and any difference
 Fast math is on (the command line's default), and the divergence check must still catch a
 non-finite velocity on the device.
 
+Not here: multi-body scenes under the implicit solvers, whose body pair list stays empty on
+lavapipe (scripts/vulkan_atomic_in_loop.py; docs/benchmarks/STENCIL.md), and a forced Cholesky
+global step on Vulkan, which also disagrees there.
+
 All cases run in one child process (Taichi's backend is per process; tests/backend_probe.py), which
 fails the test, not skips it, where Vulkan is missing: ``runtime.init`` refuses a backend Taichi
 would replace by the CPU, and the arch Taichi really started is checked.
