@@ -2,11 +2,6 @@
 no spring stored and none counted by the memory estimate, no NaN from zero-length springs, NaN
 caught under fast math, run-time stiffness, bit-identical repeats, mesh bodies through the presence
 mask, the Vulkan backend."""
-import json
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -17,6 +12,7 @@ from taichi_soft.sim.footprint import MODEL_SPRINGS
 from taichi_soft.sim.integrators import REGISTRY
 from taichi_soft.sim.scene import load_scene
 
+from backend_probe import run_on_backends
 from conftest import ROOT, restart_taichi
 from test_memory import _field_bytes, _fields
 
@@ -187,41 +183,15 @@ def test_velocity_verlet_refuses_the_stencil_before_any_work():
         memory.estimate(data, "velocity_verlet", "f64", "cpu")
 
 
-# One stencil run per backend, each on a Taichi runtime started for it, in a child process (a
-# driver crash cannot take pytest down). runtime.init refuses a backend Taichi would replace by the
-# CPU, and the child reports the arch Taichi really started, so a fallback fails the test.
-BACKEND_PROBE = """
-import json, sys
-import taichi as ti
-from taichi_soft import runtime
-from taichi_soft.sim.scene import load_scene
-from taichi_soft.sim.simulation import Simulation
-
-sets, steps, dt = json.loads(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
-out = {}
-for arch in sys.argv[4:]:
-    runtime.init(arch, "f32")
-    sim = Simulation(load_scene("plane", sets), integrator="semi_implicit_euler", dt=dt, options={"forces": "stencil"})
-    assert sim.advance(steps) == steps and not sim.integrator.diverged
-    out[arch] = {"arch": runtime.current()["arch"], "started": ti.lang.impl.current_cfg().arch.name,
-                 "strategy": sim.integrator.forces.strategy, "x": sim.state.numpy()[0].tolist(),
-                 "x0": sim.model.x0_np.tolist()}
-    ti.reset()
-print(json.dumps(out))
-"""
-
-
 def test_vulkan_stencil_matches_the_cpu():
     """The stencil pass on Vulkan (Mesa's lavapipe runs it on the CPU here), f32: the deformed n = 6
     cube after 30 steps of 1 ms lies within 1e-4 m of the CPU backend's, and its springs moved it
     well away from free fall (so the agreement is not that of two empty force passes)."""
     steps, dt = 30, 1e-3
-    sets = DEFORMED + ["body.0.n=6"]
-    r = subprocess.run([sys.executable, "-c", BACKEND_PROBE, json.dumps(sets), str(steps), str(dt), "vulkan", "cpu"],
-                       capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
-                       timeout=300)
-    assert r.returncode == 0, r.stderr[-2000:]
-    out = json.loads(r.stdout.strip().splitlines()[-1])
+    case = dict(sets=DEFORMED + ["body.0.n=6"], integrator="semi_implicit_euler", dt=dt, steps=steps,
+                options={"forces": "stencil"})
+    out = {arch: runs[0] for arch, runs in run_on_backends([case], ("vulkan", "cpu")).items()}
+    assert all(r["steps"] == steps and not r["diverged"] for r in out.values())
     assert out["vulkan"]["arch"] == "vulkan" and out["vulkan"]["started"] == "vulkan", out["vulkan"]["started"]
     assert out["cpu"]["arch"] == "cpu"
     assert out["vulkan"]["strategy"] == out["cpu"]["strategy"] == "stencil"
