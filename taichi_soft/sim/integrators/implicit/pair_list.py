@@ -48,12 +48,12 @@ def field_bytes(n_particles: int, real_bytes: int) -> int:
     """Bytes of a ``PairContacts``'s fields (for the memory model): per candidate pair two ends (i32),
     a multiplier, its normal, the contact normal and face spacing and a 3x3 block (reals), and the
     carried-over copy of a partner (i32), a multiplier and a normal (reals); per particle body, near
-    flag, face mask, sorted index, contact count and two carry-over counters (i32), radius, rest
+    flag, face mask, sorted index, contact count, two carry-over counters and two candidate counters (i32), radius, rest
     position, gradient, restitution, contact weight and depth, tube base, path and midpoint and a
     3x3 block (reals); per hash
     bucket a count and a start (i32)."""
     pairs = PAIRS_PER_PARTICLE * n_particles * (3 * 4 + 21 * real_bytes)
-    return pairs + n_particles * (7 * 4 + 30 * real_bytes) + table_size(n_particles) * 2 * 4
+    return pairs + n_particles * (9 * 4 + 30 * real_bytes) + table_size(n_particles) * 2 * 4
 
 
 @ti.data_oriented
@@ -91,6 +91,8 @@ class PairList(BodyGrid):
         self.keep_normal = vec(self.capacity)
         self.keep_count = ti.field(ti.i32, n)
         self.keep_start = ti.field(ti.i32, n + 1)
+        self.found_count = ti.field(ti.i32, n)  # each particle's candidates, counted before they are written
+        self.found_start = ti.field(ti.i32, n + 1)
         return radii
 
     # -- the tube -------------------------------------------------------------------------------
@@ -230,11 +232,21 @@ class PairList(BodyGrid):
                 h = self._bucket(self._cell_of(self.mid[i]))
                 k = ti.atomic_add(self.bucket_count[h], 1)
                 self.sorted[self.bucket_start[h] + k] = i
+        # Counted, then written from each particle's own start: no atomic inside _find's run-time
+        # loops (on Vulkan, lavapipe, an integer atomic there ended the loop early and the list
+        # stayed empty: scripts/vulkan_atomic_in_loop.py). The order is the serial append's.
+        for i in range(self.n):
+            self.found_count[i] = 0
+            if self.near[i]:
+                self.found_count[i] = self._find(i, rho, 0, False)
+        _starts(self.found_count, self.found_start, self.n)
         for i in range(self.n):
             if self.near[i]:
-                self._find(i, rho)
-        ti.atomic_max(self.acc.most[None], ti.cast(self.n_pairs[None], ti.f64))
-        self.n_pairs[None] = ti.min(self.n_pairs[None], self.capacity)
+                self._find(i, rho, self.found_start[i], True)
+        total = self.found_start[self.n]
+        self.acc.overflow[None] += ti.cast(ti.max(total - self.capacity, 0), ti.f64)
+        ti.atomic_max(self.acc.most[None], ti.cast(total, ti.f64))
+        self.n_pairs[None] = ti.min(total, self.capacity)
         self._geometry(xp)
 
     @ti.func
@@ -262,9 +274,12 @@ class PairList(BodyGrid):
         return (a + t * b).norm()
 
     @ti.func
-    def _find(self, i, rho):
-        """Append particle i's candidates: j > i of another body whose relative path comes within
-        S_ij + 2 rho (``_span``: the farthest a pair can touch, a face pair's sqrt(R_ij^2 + s^2))."""
+    def _find(self, i, rho, start, write: ti.template()):
+        """Count particle i's candidates: j > i of another body whose relative path comes within
+        S_ij + 2 rho (``_span``: the farthest a pair can touch, a face pair's sqrt(R_ij^2 + s^2));
+        with ``write``, store them from slot ``start`` on (those past the capacity are dropped, and
+        counted as overflow by the caller)."""
+        found = 0
         mi, bi = self.mid[i], self.body[i]
         ci = self._cell_of(mi)
         for o in range(27):  # the 3x3x3 cells around i's (a run-time loop: unrolled it compiles slowly)
@@ -277,12 +292,13 @@ class PairList(BodyGrid):
                 if j > i and self.body[j] != bi and all(self._cell_of(self.mid[j]) == c):
                     b = self.path[i] - self.path[j]
                     if self._closest(mi - self.mid[j] - 0.5 * b, b) < self._span(i, j) + 2.0 * rho:
-                        p = ti.atomic_add(self.n_pairs[None], 1)
-                        if p < self.capacity:
-                            self.pa[p] = i
-                            self.pb[p] = j
-                        else:
-                            ti.atomic_add(self.acc.overflow[None], 1.0)
+                        if ti.static(write):
+                            p = start + found
+                            if p < self.capacity:
+                                self.pa[p] = i
+                                self.pb[p] = j
+                        found += 1
+        return found
 
 
 @ti.func
