@@ -1,4 +1,4 @@
-"""The step's scheme: backward Euler or BDF2, the same minimisation with other coefficients.
+"""The step's scheme: backward Euler, BDF2 or SDIRK2, the same minimisation with other coefficients.
 
 Backward Euler (BE): x_{n+1} = argmin 1/2 |x - y|_M^2 + h^2 (E + D)(x), y = x_n + h v_n + h^2 g,
 v_{n+1} = (x_{n+1} - x_n) / h.
@@ -25,6 +25,16 @@ BDF2 needs a smooth history. A step is taken with BDF2 only when the option asks
 * the model has no grab and no body-body pairs (their step terms are written for backward Euler).
 Every other step is backward Euler, so contact, friction, restitution and the clamp work exactly
 as before, and the first step after any of these events starts BDF2's history again.
+
+SDIRK2 (Alexander 1977, gamma = 1 - 1/sqrt 2: L-stable, second order, stiffly accurate), every
+step, two solves (``stage`` 1 and 2, run by the driver): a backward-Euler solve of gamma h from
+(x_n, v_n) to (X1, V1), then one of gamma h over the rest of the step, (1 - gamma) h, from
+x^ = X1 + sqrt 2 (X1 - x_n), v^ = V1 + sqrt 2 (V1 - v_n) (the same ``u_base``/``h_eff`` path as
+BDF2). A particle touching the terrain at X1 is not extrapolated; restitution acts once, at the
+step's end, from the velocity the step began with (``v_step``); the energy account is the whole
+step's (``h_step``). A second stage that ends with more energy than the step began with is taken
+again from (X1, V1) as backward Euler over (1 - gamma) h (``stage`` 3, counted), which keeps the
+step's energy bound (docs/implicit.md, "The scheme").
 """
 
 import taichi as ti
@@ -72,7 +82,7 @@ class StepScheme:
         self.bdf2_step = ti.field(ti.i32, ())  # 1: this step is a BDF2 step
         self.dt_last = ti.field(float, ())  # h of the last step [s]
         self.h_eff = ti.field(float, ())  # h (backward Euler) or 2 h / 3 (BDF2) of this step [s]
-        self.stage = ti.field(ti.i32, ())  # SDIRK2: 1 or 2, the stage this solve is; 0: not SDIRK2
+        self.stage = ti.field(ti.i32, ())  # SDIRK2: this solve's stage, 1, 2 or 3 (2 taken again); 0: not SDIRK2
         self.h_step = ti.field(float, ())  # SDIRK2: the energy the whole step began with [J]
         self.redo = ti.field(ti.i32, ())  # SDIRK2: 1 = the second stage gained energy; take it as BE
 
