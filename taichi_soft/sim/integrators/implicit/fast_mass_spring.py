@@ -23,7 +23,7 @@ from .driver import ImplicitIntegrator
 from .fast_mass_spring_laplacian import LaplacianMatrix
 from .fast_mass_spring_lbfgs import LBFGS_DIRECTION
 from .fast_mass_spring_lbfgs import PHASES as OWN_PHASES
-from .options import LocalGlobalConfig
+from .options import FastMassSpringConfig
 
 
 @register
@@ -33,7 +33,7 @@ class FastMassSpring(ImplicitIntegrator):
 
     name = "fast_mass_spring"
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
-    Config = LocalGlobalConfig
+    Config = FastMassSpringConfig
     BUFFERS = {"jacobi_inv": per_particle("block-Jacobi inverses of a Jacobi-preconditioned solve [1/kg]", MAT)}
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(LaplacianMatrix.BUFFERS)  # and its matrix's (fast_mass_spring_laplacian.py)
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels

@@ -15,7 +15,7 @@ from ...model import code_spring
 from ..base import MB, register
 from .accounts import contact_stats
 from .driver import ImplicitIntegrator
-from .options import NewtonConfig
+from .options import ImplicitEulerConfig
 
 
 @ti.data_oriented
@@ -76,7 +76,7 @@ class ImplicitEuler(ImplicitIntegrator):
 
     name = "implicit_euler"
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
-    Config = NewtonConfig
+    Config = ImplicitEulerConfig
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(SpringHessian.BUFFERS)  # and its Hessian's
     BASE_BYTES = 175 * MB  # measured (memory.py): process, runtime, compiled kernels
 
