@@ -141,7 +141,8 @@ class ImplicitIntegrator(Integrator):
         self._contacts = value
         self.pairs = None
         if value is not None and self.options.body_contact:
-            self.pairs = PairContacts(self, self.options.contact_stiffness)
+            self.pairs = PairContacts(self.model, self.terrain, self.sc, self.objective,
+                                      self.options.contact_stiffness)
         self.objective.pairs = self.end.pairs = self.pairs
 
     def _has_pairs(self) -> bool:
