@@ -13,6 +13,7 @@ import pytest
 import implicit_probe as probe
 from physics_helpers import build, default_cube_sim, moving_cube, simulate, stretched, total_energy
 from taichi_soft.sim.integrators import REGISTRY, make_integrator
+from taichi_soft.sim.integrators.implicit.operator import require
 
 # Module-level caches hold Taichi objects across tests: one runtime for the module (conftest.py).
 pytestmark = pytest.mark.taichi_shared
@@ -30,6 +31,19 @@ FRAME = 1.0 / 60.0
 def test_registered():
     assert set(IMPLICIT) <= set(REGISTRY)
     assert all(REGISTRY[n].implicit for n in IMPLICIT)
+
+
+def test_each_solver_is_the_linear_operator_its_parts_call():
+    """Both solvers implement operator.LinearOperator; an object missing a method is refused, by name."""
+    for name in IMPLICIT:
+        assert require(REGISTRY[name]) is REGISTRY[name]
+
+    class NoGrab:
+        apply = precondition = prepare_preconditioner = REGISTRY["implicit_euler"].apply
+        store_spring_hessian = store_preconditioner = REGISTRY["implicit_euler"].store_spring_hessian
+
+    with pytest.raises(TypeError, match="grab_factored"):
+        require(NoGrab())
 
 
 # -- the objective's derivatives -------------------------------------------------------------

@@ -47,8 +47,10 @@ from .walk import PHASES as SHARED_PHASES
 class ImplicitIntegrator(Integrator):
     """Shared machinery of ``implicit_euler`` and ``fast_mass_spring``.
 
-    Subclasses provide ``_store_spring_hessian(s, block)`` and ``_store_preconditioner(i)``
-    (ti.funcs the gradient pass calls: whatever ``apply`` and ``precondition`` need), ``DIRECTION``
+    A solver is its own linear operator: subclasses implement ``operator.LinearOperator``
+    (``store_spring_hessian(s, block)`` and ``store_preconditioner(i)``, the ti.funcs the gradient
+    pass calls, storing whatever ``apply`` and ``precondition`` need; ``prepare_preconditioner``;
+    ``grab_factored(i)``, False here), ``DIRECTION``
     (a ``walk.Walk``: dx from rhs at the iterate x; by default the PCG solve) and ``Config`` (an
     ``options.ImplicitConfig``: its ``residual_tol`` and ``max_iterations`` stop the iterations). A
     solver whose direction has phases of its own adds them to ``PHASES`` (walk.py: name -> its
@@ -90,8 +92,11 @@ class ImplicitIntegrator(Integrator):
         # g(x), its gradient and values; this solver's linear operator takes the gradient pass's blocks
         self.objective = Objective(model, terrain, self.sc, self.scheme, self.contact, operator=self)
         self.accounts = StepAccounts(self.sc, self.scheme)  # what the steps did, for stats()
+        self.tol2 = ti.field(float, ())  # tolerance on sc.res2 for this step's h_eff (see _begin_step)
+        # phase 4: it ends each particle's step with the base class's ``_finish`` (terrain response,
+        # divergence check) and judges the step's residual by ``tol2``
         self.end = StepEnd(model, terrain, self.sc, self.objective, self.contact, self.spread, self.scheme,
-                           self.accounts, owner=self)  # phase 4
+                           self.accounts, finish=self._finish, tol2=self.tol2)
         super().__init__(model, terrain, options, contacts)
         o = self.options
         self._counters = counters(self.sc)
@@ -103,7 +108,6 @@ class ImplicitIntegrator(Integrator):
         self.cg_tol = ti.field(float, ())
         self.ew_forcing = ti.field(ti.i32, ())  # 1: Eisenstat-Walker forcing term
         self.velocity_tol = ti.field(float, ())  # [m/s]
-        self.tol2 = ti.field(float, ())  # tolerance on sc.res2 for this step's h_eff (see _begin_step)
         self.tol_acc = ti.field(float, ())  # the solver's residual tolerance [m/s^2]
         self.roundoff = ti.field(float, ())  # relative objective noise the line search ignores
         # Values only after every field is allocated: the first write closes the pending SNode
@@ -137,16 +141,17 @@ class ImplicitIntegrator(Integrator):
         self._contacts = value
         self.pairs = None
         if value is not None and self.options.body_contact:
-            self.pairs = PairContacts(self, self.options.contact_stiffness)
+            self.pairs = PairContacts(self.model, self.terrain, self.sc, self.objective,
+                                      self.options.contact_stiffness)
         self.objective.pairs = self.end.pairs = self.pairs
 
     def _has_pairs(self) -> bool:
         return self.pairs is not None
 
     @ti.func
-    def _grab_factored(self, i):
-        """Whether the solver's matrix already carries the grab on particle i (fast_mass_spring's
-        factor does, fast_mass_spring.py); otherwise a grabbed particle counts as held (objective.py)."""
+    def grab_factored(self, i):
+        """Whether the solver's matrix already carries the grab on particle i (operator.py;
+        fast_mass_spring's factor does); otherwise a grabbed particle counts as held (objective.py)."""
         return False
 
     @ti.func

@@ -23,7 +23,7 @@ from .driver import ImplicitIntegrator
 from .fast_mass_spring_laplacian import LaplacianMatrix
 from .fast_mass_spring_lbfgs import LBFGS_DIRECTION
 from .fast_mass_spring_lbfgs import PHASES as OWN_PHASES
-from .options import LocalGlobalConfig
+from .options import FastMassSpringConfig
 
 
 @register
@@ -33,7 +33,7 @@ class FastMassSpring(ImplicitIntegrator):
 
     name = "fast_mass_spring"
     description = "fast mass-spring (Liu et al. 2013): local/global iterations, prefactored constant matrix"
-    Config = LocalGlobalConfig
+    Config = FastMassSpringConfig
     BUFFERS = {"jacobi_inv": per_particle("block-Jacobi inverses of a Jacobi-preconditioned solve [1/kg]", MAT)}
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(LaplacianMatrix.BUFFERS)  # and its matrix's (fast_mass_spring_laplacian.py)
     BASE_BYTES = 164 * MB  # measured (memory.py): process, runtime, compiled kernels
@@ -105,7 +105,7 @@ class FastMassSpring(ImplicitIntegrator):
         self.grab_w_for[None] = i if ok else -1
 
     @ti.func
-    def _grab_factored(self, i):
+    def grab_factored(self, i):
         """Whether the grab on particle i is in the factor (_factor_solve), so it does not make
         the particle count as held."""
         out = False
@@ -137,13 +137,15 @@ class FastMassSpring(ImplicitIntegrator):
     # system by PCG preconditioned by the prefactored Cholesky of the unconstrained A (a few
     # iterations: the constraints perturb A by a low-rank change), "scaled" takes only its first
     # direction (see _scaled_direction).
+    # Its linear operator (operator.LinearOperator): A + F, filtered (F the friction, pair and grab
+    # blocks the gradient pass leaves in ``objective.fric_hess``).
     @ti.func
-    def _store_spring_hessian(self, s, hs):
+    def store_spring_hessian(self, s, hs):
         pass  # A is constant; the friction blocks come from the gradient
 
     @ti.func
-    def _store_preconditioner(self, i):
-        pass
+    def store_preconditioner(self, i):
+        pass  # prepared per solve (prepare_preconditioner)
 
     @ti.func
     def apply(self, src: ti.template(), dst: ti.template()):

@@ -15,7 +15,7 @@ from ...model import code_spring
 from ..base import MB, register
 from .accounts import contact_stats
 from .driver import ImplicitIntegrator
-from .options import NewtonConfig
+from .options import ImplicitEulerConfig
 
 
 @ti.data_oriented
@@ -76,7 +76,7 @@ class ImplicitEuler(ImplicitIntegrator):
 
     name = "implicit_euler"
     description = "backward Euler: Newton + block-Jacobi PCG on the step's energy, line search (stable at frame-sized steps)"
-    Config = NewtonConfig
+    Config = ImplicitEulerConfig
     FIELDS = ImplicitIntegrator.FIELDS + FieldCounts.of(SpringHessian.BUFFERS)  # and its Hessian's
     BASE_BYTES = 175 * MB  # measured (memory.py): process, runtime, compiled kernels
 
@@ -84,17 +84,18 @@ class ImplicitEuler(ImplicitIntegrator):
         self.hessian = SpringHessian(model)  # the Newton system's blocks
         super().__init__(model, terrain, options, contacts)
 
+    # -- its linear operator (operator.LinearOperator): the filtered Hessian
+    # H = M + h^2 K_psd + h D + friction, pairs and grab, applied per particle
     @ti.func
-    def _store_spring_hessian(self, s, hs):
+    def store_spring_hessian(self, s, hs):
         self.hessian.store_spring(s, hs)
 
     @ti.func
-    def _store_preconditioner(self, i):
+    def store_preconditioner(self, i):
         """Inverse of particle i's diagonal block (mass, springs, friction), filtered if held."""
         block = self.hessian.diagonal(i, self.objective.fric_hess[i])
         self.hessian.precond[i] = self.objective.filtered_inverse(i, block)
 
-    # PCG operator: the filtered Hessian H = M + h^2 K_psd + h D + friction, applied per particle.
     @ti.func
     def apply(self, src: ti.template(), dst: ti.template()):
         for i in range(self.n):
@@ -104,7 +105,7 @@ class ImplicitEuler(ImplicitIntegrator):
 
     @ti.func
     def prepare_preconditioner(self):
-        pass  # stored with the gradient (_store_preconditioner)
+        pass  # stored with the gradient (store_preconditioner)
 
     @ti.func
     def precondition(self, src: ti.template(), dst: ti.template()):

@@ -23,6 +23,7 @@ from ...allocation import allocate
 from ...footprint import MAT, VEC, per_particle, per_spring
 from ...forces import spring_energy, spring_energy_derivatives
 from ...model import code_spring, end_b_spring, is_end_a
+from .operator import require
 
 
 @ti.func
@@ -55,9 +56,9 @@ class Objective:
 
     Given at construction: the ``model``, the ``terrain``, the step's scalars ``sc`` (scalars.py),
     the ``scheme`` (scheme.py: u_base, the step's base), the terrain ``contact`` (contact.py: the
-    active set and friction) and the ``operator``, the solver whose linear operator the gradient pass
-    fills (its ti.funcs ``_store_spring_hessian(s, block)``, ``_store_preconditioner(i)`` and
-    ``_grab_factored(i)``). ``pairs`` (pairs.PairContacts) is given by the solver when it builds its
+    active set and friction) and the ``operator`` (operator.LinearOperator: the solver's linear
+    operator, which the gradient pass fills through ``store_spring_hessian(s, block)`` and
+    ``store_preconditioner(i)``, and asks ``grab_factored(i)``). ``pairs`` (pairs.PairContacts) is given by the solver when it builds its
     body-body pairs, before any kernel compiles; None: a scene of one body, no pair code.
 
     Holds the step's start (x_n, v_n, the target yd), its iterate u with the search direction dx
@@ -91,7 +92,7 @@ class Objective:
         """Allocates the fields only (no write: the owner's pending SNode tree stays open; the
         owner sets the values once every field is allocated)."""
         self.model, self.terrain, self.sc, self.scheme, self.contact = model, terrain, sc, scheme, contact
-        self.operator = operator
+        self.operator = require(operator)
         self.pairs = None
         self.n = model.n_particles
         allocate(self, self.BUFFERS, self.n, model.n_springs)
@@ -160,14 +161,14 @@ class Objective:
         """grad g(x), the filtered residual ``rhs`` and its norm (``sc.res2``), from one pass over springs
         and one gather per particle. The contact active set (hold, release, multipliers) is updated
         per particle by the terrain contact part (``contact.gradient``, contact.py). The same passes
-        store what the solver's linear operator needs (``_store_spring_hessian``,
-        ``_store_preconditioner``): one pass instead of a separate Hessian phase halves the serial
+        store what the solver's linear operator needs (``store_spring_hessian``,
+        ``store_preconditioner``): one pass instead of a separate Hessian phase halves the serial
         kernel's compile time."""
         m = self.model
         for s in range(m.n_springs):
             g, hs = self.spring_terms(x, s, dt)
             self.spring_grad[s] = g
-            self.operator._store_spring_hessian(s, hs)
+            self.operator.store_spring_hessian(s, hs)
         self.sc.res2[None] = 0.0
         self.sc.n_active[None] = 0.0
         self.sc.n_pairs[None] = 0.0
@@ -208,7 +209,7 @@ class Objective:
             self.grad[i] = gi
             self.rhs[i] = r
             self.sc.res2[None] += r.dot(r) * m.inv_mass[i]
-            self.operator._store_preconditioner(i)
+            self.operator.store_preconditioner(i)
 
     @ti.func
     def trial(self, x: ti.template(), dt):
@@ -291,14 +292,14 @@ class Objective:
     def grab_gradient(self, i, xi, gi, dt):
         """gi plus the grab's gradient (grab.py); its Hessian goes with the friction block. While
         particle i is grabbed it counts in ``sc.n_active`` unless the solver's matrix carries the grab
-        (``_grab_factored``): a matrix that lacks the grab's diagonal term takes the held-particle
+        (``grab_factored``): a matrix that lacks the grab's diagonal term takes the held-particle
         path (the factor as a preconditioner), as for a particle held by friction."""
         _gv, gg, gh = self.model.grab.step_terms(i, xi, self.x_prev[i], dt)
         fh = ti.Matrix.zero(float, 3, 3)
         if ti.static(self.terrain.has_contact or self._has_pairs()):
             fh = self.fric_hess[i]  # this gradient's friction and pair blocks (written just before)
         self.fric_hess[i] = fh + gh * ti.Matrix.identity(float, 3)
-        if gh > 0 and not self.operator._grab_factored(i):
+        if gh > 0 and not self.operator.grab_factored(i):
             self.sc.n_active[None] += 1.0
         return gi + gg
 

@@ -1,8 +1,8 @@
 """Options of the implicit integrators, typed and documented in one place (``..options``).
 
 A scene sets them in its ``[solver]`` table or with ``--set solver.NAME=VALUE``; docs/implicit.md
-lists them. ``ImplicitConfig`` holds the options of both solvers, ``NewtonConfig`` and
-``LocalGlobalConfig`` each solver's own; the latter's ``resolve`` chooses the global solver.
+lists them. ``ImplicitConfig`` holds the options of both solvers, ``ImplicitEulerConfig`` and
+``FastMassSpringConfig`` each solver's own; the latter's ``resolve`` chooses the global solver.
 """
 
 from dataclasses import dataclass
@@ -59,7 +59,7 @@ class ImplicitConfig(IntegratorConfig):
 
 
 @dataclass(frozen=True)
-class NewtonConfig(ImplicitConfig):
+class ImplicitEulerConfig(ImplicitConfig):
     """``implicit_euler``'s options: Newton's iterations and its CG tolerance."""
 
     newton_iters: int = option(20, int_at_least(1), "an integer >= 1", "most Newton iterations per step")
@@ -77,7 +77,7 @@ class NewtonConfig(ImplicitConfig):
 
 
 @dataclass(frozen=True)
-class LocalGlobalConfig(ImplicitConfig):
+class FastMassSpringConfig(ImplicitConfig):
     """``fast_mass_spring``'s options: iterations, the global solver, L-BFGS."""
 
     iterations: int = option(20, int_at_least(1), "an integer >= 1", "most local/global iterations per step")
@@ -103,7 +103,7 @@ class LocalGlobalConfig(ImplicitConfig):
     residual_tol = property(lambda self: self.tol)
     max_iterations = property(lambda self: self.iterations)
 
-    def resolve(self, arch, fast_math, counts) -> "LocalGlobalConfig":
+    def resolve(self, arch, fast_math, counts) -> "FastMassSpringConfig":
         """``global_solver = auto``: cholesky where it pays (``fast_mass_spring_laplacian.cholesky_pays``), else pcg."""
         out = super().resolve(arch, fast_math, counts)
         if out.global_solver == "auto":

@@ -54,15 +54,19 @@ __all__ = ["PairContacts", "PAIRS_PER_PARTICLE", "field_bytes"]
 
 @ti.data_oriented
 class PairContacts(PairList):
-    """Contact between the bodies of ``owner.model`` inside ``owner``'s step (an ImplicitIntegrator)."""
+    """Contact between the bodies of ``model`` inside an implicit step: a part of ``ImplicitIntegrator``.
 
-    def __init__(self, owner, stiffness: float):
-        model = owner.model
+    Given at construction: the ``model``, the ``terrain``, the step's scalars ``sc`` (it reads
+    h2_prev; it lowers t_max and writes n_active, n_pairs and, in the trial, f_trial and e_trial), the
+    ``objective`` (the step's start x_n, v_n, its iterate u and direction dx, h^2, the friction
+    length, the rows' filter) and the penalty ``stiffness`` kappa [-]. Nothing of the solver.
+    """
+
+    def __init__(self, model, terrain, sc, objective, stiffness: float):
         n = model.n_particles
-        self.owner = owner
-        self.model = model
-        self.terrain = owner.terrain
-        self._init_list(owner, model)
+        self.model, self.terrain, self.sc, self.objective = model, terrain, sc, objective
+        self.owner = self  # the pair list (pair_list.py) reads the step's model and objective from its owner
+        self._init_list(self, model)
         vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
         self.kappa = ti.field(float, ())  # penalty stiffness [-], times m_ij / h^2 [N/m]
         self.kappa[None] = stiffness
@@ -124,7 +128,7 @@ class PairContacts(PairList):
     def begin(self, xp: ti.template(), yd: ti.template(), d: ti.template(), u0: ti.template(), dt):
         """Candidate pairs for the tube around the start paths x_n + u0 + t d (x_n = ``xp``; u0 the
         pinned particles' fixed move; pair_list.py) and their geometry frozen at x_n; lowers the
-        owner's start fraction ``sc.t_max`` to the first contact along them. ``yd`` = y - x_n (the
+        step's start fraction ``sc.t_max`` to the first contact along them. ``yd`` = y - x_n (the
         predicted move) is for the removed-overlap counter; ``dt`` [s] the step, for the energy
         counted as refrozen."""
         # Friction's multipliers and normals (IPC's lag): the load each pair carried at the end of
@@ -138,8 +142,8 @@ class PairContacts(PairList):
             self.path[i] = d[i]
         self._collect(xp)
         load = ti.cast(1.0, float)
-        if self.owner.sc.h2_prev[None] > 0:
-            load = self.owner.objective.h2[None] / self.owner.sc.h2_prev[None]
+        if self.sc.h2_prev[None] > 0:
+            load = self.objective.h2[None] / self.sc.h2_prev[None]
         self._restore(load)
         self.acc.pairs[None] += ti.cast(self.n_pairs[None], ti.f64)
         # The penalty energy at x_n with this step's geometry, less what the last step ended with.
@@ -155,7 +159,7 @@ class PairContacts(PairList):
             a = (xp[i] + u0[i]) - (xp[j] + u0[j])
             t = self._first_contact(p, a, d[i] - d[j])
             if t < 1.0:
-                ti.atomic_min(self.owner.sc.t_max[None], ti.max(t, 0.0))
+                ti.atomic_min(self.sc.t_max[None], ti.max(t, 0.0))
 
     @ti.func
     def follow(self):
@@ -173,7 +177,7 @@ class PairContacts(PairList):
         tangential displacement."""
         i, j = self.pa[p], self.pb[p]
         return lagged_friction(disp[i] - disp[j], nrm, self.terrain.friction[None] * lam,
-                               self.owner.objective.fric_eps[None])
+                               self.objective.fric_eps[None])
 
     @ti.func
     def _gap(self, p, d):
@@ -263,8 +267,8 @@ class PairContacts(PairList):
             if ov > 0 and w > 0:
                 g = -(kp * w * ov) * nrm + self._weight_gradient(p, d, nrm, kp * ov * ov)
                 hb = (kp * w) * nrm.outer_product(nrm)
-                self.owner.sc.n_active[None] += 1.0
-                self.owner.sc.n_pairs[None] += 1.0
+                self.sc.n_active[None] += 1.0
+                self.sc.n_pairs[None] += 1.0
             if self.lam[p] > 0:
                 _f, fg, fh = self._friction(p, disp, self.fnormal[p], self.lam[p])
                 g += fg
@@ -277,13 +281,13 @@ class PairContacts(PairList):
 
     @ti.func
     def apply(self, src: ti.template(), dst: ti.template()):
-        """Add the pair blocks' off-diagonal part to dst = H src (the diagonal is in the owner's
-        per-particle contact blocks), filtered as the owner filters its rows."""
+        """Add the pair blocks' off-diagonal part to dst = H src (the diagonal is in the objective's
+        per-particle contact blocks), filtered as the objective filters its rows."""
         for p in range(self.n_pairs[None]):
             i, j = self.pa[p], self.pb[p]
             hb = self.block[p]
-            dst[i] -= self.owner.objective.filter(i, hb @ src[j])
-            dst[j] -= self.owner.objective.filter(j, hb @ src[i])
+            dst[i] -= self.objective.filter(i, hb @ src[j])
+            dst[j] -= self.objective.filter(j, hb @ src[i])
 
     @ti.func
     def trial_end(self, xt: ti.template(), ut: ti.template(), dt):
@@ -295,13 +299,13 @@ class PairContacts(PairList):
             ov, w, _n = self._gap(p, xt[i] - xt[j])
             if ov > 0 and w > 0:
                 e = self._energy(p, ov, w)
-                self.owner.sc.f_trial[None] += e
-                self.owner.sc.e_trial[None] += e / (dt * dt)
+                self.sc.f_trial[None] += e
+                self.sc.e_trial[None] += e / (dt * dt)
             if self.lam[p] > 0:
                 fe, _g, _h = self._friction(p, ut, self.fnormal[p], self.lam[p])
-                self.owner.sc.f_trial[None] += fe
+                self.sc.f_trial[None] += fe
         if self.outside():
-            self.owner.sc.f_trial[None] = 1e300
+            self.sc.f_trial[None] = 1e300
             self.acc.trust[None] += 1.0
 
     # -- end: restitution and counters ------------------------------------------------------------
@@ -344,9 +348,9 @@ class PairContacts(PairList):
             i, j = self.pa[p], self.pb[p]
             ov, w, nrm = self._gap(p, x[i] - x[j])
             if ov > 0 and w > 0:
-                approach = nrm.dot(self.owner.objective.v_prev[i] - self.owner.objective.v_prev[j])
+                approach = nrm.dot(self.objective.v_prev[i] - self.objective.v_prev[j])
                 if -approach > t.bounce_threshold[None]:
-                    vn = nrm.dot(self.owner.objective.u[i] - self.owner.objective.u[j]) / dt
+                    vn = nrm.dot(self.objective.u[i] - self.objective.u[j]) / dt
                     target = -t.restitution[None] * approach
                     if target > vn:
                         inv_i, inv_j = self.model.inv_mass[i], self.model.inv_mass[j]

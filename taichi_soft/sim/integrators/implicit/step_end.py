@@ -1,7 +1,7 @@
 """Phase 4 of the implicit step, its end: velocities from the solve, restitution as a velocity
 step through the body (restitution.py) and the body-body responses, scaled to the energy the step
-lost, ``Integrator._finish`` (``Terrain.respond``, the divergence check), and, as a counted last
-resort, the energy clamp. Its phases are walked by both drivers (walk.py).
+lost, the solver's ``finish`` (``Integrator._finish``: ``Terrain.respond``, the divergence check),
+and, as a counted last resort, the energy clamp. Its phases are walked by both drivers (walk.py).
 """
 
 import taichi as ti
@@ -18,10 +18,12 @@ class StepEnd:
     energies the objective and the start left there: h_start, h_scale, e_cur; it writes k_solve,
     g_end, n_bounce, bounce_a, bounce_b, k_end, bounce_limited, clamped), the ``objective`` (u, v_n,
     the residual), the terrain ``contact`` and its restitution ``spread``, the ``scheme`` (u_base,
-    and it records the step's end), the ``accounts`` (it records the step) and the ``owner``, the
-    solver whose ``Integrator._finish`` ends each particle's step and whose ``tol2`` the accounts
-    judge the step's residual by. ``pairs`` (pairs.PairContacts) is given by the solver with its
-    body-body pairs; None: no pair code.
+    and it records the step's end), the ``accounts`` (it records the step), ``finish``, the
+    solver's ti.func ``finish(i, x, v, x_i, v_i, step)`` that stores particle i's end of step
+    (``Integrator._finish``: the terrain's response, the divergence check), and ``tol2``, the
+    solver's field of the tolerance on ``sc.res2`` the accounts judge the step's residual by. Nothing
+    else of the solver. ``pairs`` (pairs.PairContacts) is given by the solver with its body-body
+    pairs; None: no pair code.
     """
 
     BUFFERS = {
@@ -29,11 +31,11 @@ class StepEnd:
         "dv": per_particle("restitution's velocity change [m/s]", VEC),
     }
 
-    def __init__(self, model, terrain, sc, objective, contact, spread, scheme, accounts, owner):
+    def __init__(self, model, terrain, sc, objective, contact, spread, scheme, accounts, finish, tol2):
         """Allocates the fields only (no write: the owner's pending SNode tree stays open)."""
         self.model, self.terrain, self.sc, self.objective = model, terrain, sc, objective
         self.contact, self.spread, self.scheme, self.accounts = contact, spread, scheme, accounts
-        self.owner = owner
+        self.finish_particle, self.tol2 = finish, tol2
         self.pairs = None
         self.n = model.n_particles
         allocate(self, self.BUFFERS, self.n, 0)
@@ -90,8 +92,8 @@ class StepEnd:
     @ti.func
     def finish(self, x: ti.template(), v: ti.template(), step):
         """After the restitution spread: every restitution and body-body response scaled to the energy
-        the step lost; ``_finish``; then, if the step still ends with more energy than it began with
-        (beyond round-off), the counted clamp."""
+        the step lost; the solver's ``finish`` per particle; then, if the step still ends with more
+        energy than it began with (beyond round-off), the counted clamp."""
         m = self.model
         scale = ti.cast(1.0, float)
         if ti.static(self.terrain.has_contact or self._has_pairs()):
@@ -107,7 +109,7 @@ class StepEnd:
             scale = self._bounce_scale(lost)
         self.sc.k_end[None] = 0.0
         for i in range(self.n):
-            self.owner._finish(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
+            self.finish_particle(i, x, v, x[i], self.v_new[i] + scale * self.dv[i], step)
             if self.model.free(i):
                 self.sc.k_end[None] += 0.5 * m.mass[i] * v[i].dot(v[i])
         # Last resort, counted in stats(): take the excess out of the kinetic energy.
@@ -125,7 +127,7 @@ class StepEnd:
             if f < 1.0 and self.model.free(i):
                 v[i] *= f
         self.scheme.record(x, v)
-        self.accounts.record(self.objective.residual(), self.owner.tol2[None])
+        self.accounts.record(self.objective.residual(), self.tol2[None])
 
     @ti.func
     def _bounce_scale(self, budget):
