@@ -58,9 +58,10 @@ def field_bytes(n_particles: int, real_bytes: int) -> int:
 
 @ti.data_oriented
 class PairList(BodyGrid):
-    """Candidate pairs of the bodies of ``model`` for the tube of ``owner``'s step (module doc)."""
+    """Candidate pairs of the bodies of ``model`` for the tube of the step whose ``objective`` (u, dx,
+    x_prev) the subclass holds (module doc)."""
 
-    def _init_list(self, owner, model):
+    def _init_list(self, model):
         n = model.n_particles
         radii = self._init_grid(model)
         self.capacity = max(1, int(round(PAIRS_PER_PARTICLE * n)))
@@ -137,13 +138,13 @@ class PairList(BodyGrid):
 
     @ti.func
     def check(self):
-        """``again`` = 1 if the owner's full step u + dx leaves the tube (the tube is convex and holds
+        """``again`` = 1 if the step's full update u + dx leaves the tube (the tube is convex and holds
         u, so then and only then can a trial of the line search leave it, projection aside)."""
-        o = self.owner
+        ob = self.objective
         self.trial_begin()
         for i in range(self.n):
-            if o.model.free(i):
-                self._admit(i, o.objective.u[i] + o.objective.dx[i] - self.base[i])
+            if self.model.free(i):
+                self._admit(i, ob.u[i] + ob.dx[i] - self.base[i])
         self.again[None] = 0
         if self.outside():
             self.again[None] = 1
@@ -152,12 +153,12 @@ class PairList(BodyGrid):
     def regather(self):
         """Rebuild the list along u + alpha dx (the tube around the line search), carrying the held
         pairs' frozen friction multipliers and normals over."""
-        o = self.owner
+        ob = self.objective
         self._stash()
         for i in range(self.n):
-            self.base[i] = o.objective.u[i]
-            self.path[i] = o.objective.dx[i]
-        self._collect(o.objective.x_prev)
+            self.base[i] = ob.u[i]
+            self.path[i] = ob.dx[i]
+        self._collect(ob.x_prev)
         self._restore(1.0)
         self.acc.gathers[None] += 1.0
 

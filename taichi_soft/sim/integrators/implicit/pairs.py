@@ -65,8 +65,7 @@ class PairContacts(PairList):
     def __init__(self, model, terrain, sc, objective, stiffness: float):
         n = model.n_particles
         self.model, self.terrain, self.sc, self.objective = model, terrain, sc, objective
-        self.owner = self  # the pair list (pair_list.py) reads the step's model and objective from its owner
-        self._init_list(self, model)
+        self._init_list(model)
         vec = lambda size: ti.Vector.field(3, float, size)  # noqa: E731
         self.kappa = ti.field(float, ())  # penalty stiffness [-], times m_ij / h^2 [N/m]
         self.kappa[None] = stiffness
