@@ -38,7 +38,7 @@ def test_judge_extrapolates_only_where_the_runs_fit_the_order():
     assert ee.judge(1e-3, 0.0, 1) == (None, None)
 
 
-@pytest.mark.parametrize("name", ["semi_implicit_euler", "velocity_verlet", "midpoint"])
+@pytest.mark.parametrize("name", ["semi_implicit_euler", "velocity_verlet", "explicit_euler", "midpoint", "rk4"])
 def test_the_estimate_is_within_a_factor_two_of_the_true_error(make_sim, name):
     """On the smooth case, against RK4 at a step 40 times smaller sampled at the same times: the
     estimated shape error of the run at dt is within a factor 2 of its true largest shape error."""
