@@ -114,7 +114,7 @@ def _true_errors(make_sim, scene, sets, dt, total, samples, factor=16):
     # end-of-step rule's error is first order, and the estimate withholds its number there)
     ("velocity_verlet", 2.5e-4, ["contact.impact_at_crossing=true"], ("com", "shape")),
     # forward Euler: first order through the landing too, but its shape differences do not halve
-    # with the step (they fall by 1.2-3.9x a halving): the shape's number is withheld
+    # with the step (they fall by 1.1-3.9x a halving): the shape's number is withheld
     ("explicit_euler", 2.5e-4, [], ("com",)),
     # midpoint and RK4 answer contact at the end of the step whatever the setting (their stages are
     # no straight drift): a first-order error in a second- and a fourth-order method, withheld where it shows
@@ -138,7 +138,7 @@ def test_the_estimate_is_within_a_factor_two_of_the_true_error_through_a_landing
     0.125 ms but one: at 0.25 ms midpoint's shape differences happen to fit order 2 (that number is
     tested against the truth; RK4's shape there fits order 4 only by a hair, so it is not the case
     tested). Forward Euler's shape differences do not halve with the step either (they fall by
-    1.2-3.9x a halving), so its shape number is withheld at most steps; its centre of mass fits
+    1.1-3.9x a halving), so its shape number is withheld at most steps; its centre of mass fits
     order 1. Measured ratios: docs/benchmarks/VERLET.md."""
     sets = _flat_drop() + ["sim.integrator=" + name] + contact
     duration = 1.0
