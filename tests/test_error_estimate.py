@@ -38,7 +38,7 @@ def test_judge_extrapolates_only_where_the_runs_fit_the_order():
     assert ee.judge(1e-3, 0.0, 1) == (None, None)
 
 
-@pytest.mark.parametrize("name", ["semi_implicit_euler", "velocity_verlet", "midpoint"])
+@pytest.mark.parametrize("name", ["semi_implicit_euler", "velocity_verlet", "explicit_euler", "midpoint", "rk4"])
 def test_the_estimate_is_within_a_factor_two_of_the_true_error(make_sim, name):
     """On the smooth case, against RK4 at a step 40 times smaller sampled at the same times: the
     estimated shape error of the run at dt is within a factor 2 of its true largest shape error."""
@@ -107,37 +107,75 @@ def _true_errors(make_sim, scene, sets, dt, total, samples, factor=16):
     return com, max(ee.rigid_fit_rms(r, x) for r, x in zip(ref, run))
 
 
-@pytest.mark.parametrize("name, dt, contact", [
+@pytest.mark.parametrize("name, dt, contact, given", [
     # semi-implicit Euler's first-order error is its start, not its contact: the scenes' end-of-step rule
-    ("semi_implicit_euler", 1e-3, []),
+    ("semi_implicit_euler", 1e-3, [], ("com", "shape")),
     # velocity Verlet is second order through a landing only with impacts at the crossing time (the
     # end-of-step rule's error is first order, and the estimate withholds its number there)
-    ("velocity_verlet", 2.5e-4, ["contact.impact_at_crossing=true"]),
+    ("velocity_verlet", 2.5e-4, ["contact.impact_at_crossing=true"], ("com", "shape")),
+    # forward Euler: first order through the landing too, but its shape differences do not halve
+    # with the step (they fall by 1.1-3.9x a halving): the shape's number is withheld
+    ("explicit_euler", 2.5e-4, [], ("com",)),
+    # midpoint and RK4 answer contact at the end of the step whatever the setting (their stages are
+    # no straight drift): a first-order error in a second- and a fourth-order method, withheld where it shows
+    ("midpoint", 2.5e-4, [], ("shape",)),
+    ("midpoint", 1e-3, [], ()),
+    ("rk4", 1e-3, [], ()),
 ])
-def test_the_estimate_is_within_a_factor_two_of_the_true_error_through_a_landing(make_sim, name, dt, contact):
-    """The flat drop (the landing at about 0.64 s and the rebound, 1 s): both estimated errors within
-    a factor 2 of the true ones, against RK4 at a 16 times smaller step (RK4 answers contact at the
-    end of its steps whatever the setting: both rules converge to one answer as the step shrinks, and
-    at that step its difference from the crossing rule is about 2 % of velocity Verlet's error)."""
+def test_the_estimate_is_within_a_factor_two_of_the_true_error_through_a_landing(make_sim, name, dt, contact, given):
+    """The flat drop (the landing at about 0.64 s and the rebound, 1 s): each estimated error
+    ``given`` is within a factor 2 of the true one, against RK4 at a 16 times smaller step (RK4
+    answers contact at the end of its steps whatever the setting: both rules converge to one answer
+    as the step shrinks, and at that step its difference from the crossing rule is about 2 % of
+    velocity Verlet's error); each one not given is withheld (the runs do not fit the method's
+    order), not a wrong number.
+
+    Why midpoint and RK4 mostly get none: the end-of-step contact rule answers an impact up to a
+    step late, an error of first order whatever the method's, and their stages are no straight
+    drift, so the crossing-time rule (which makes velocity Verlet second order here) does not apply
+    to them. Through the landing their differences between runs do not shrink as 2^-p with the
+    step, and the estimate is withheld for both measures at every step tried from 2 ms down to
+    0.125 ms but one: at 0.25 ms midpoint's shape differences happen to fit order 2 (that number is
+    tested against the truth; RK4's shape there fits order 4 only by a hair, so it is not the case
+    tested). Forward Euler's shape differences do not halve with the step either (they fall by
+    1.1-3.9x a halving), so its shape number is withheld at most steps; its centre of mass fits
+    order 1. Measured ratios: docs/benchmarks/VERLET.md."""
     sets = _flat_drop() + ["sim.integrator=" + name] + contact
     duration = 1.0
     sim = make_sim("plane", sets, dt=dt)
-    est = ee.estimate(sim, duration, sim.integrator.order)
-    assert est["in_asymptotic_range"] and not est["diverged"], est
+    order = sim.integrator.order
+    est = ee.estimate(sim, duration, order)
+    assert not est["diverged"], est
     from taichi_soft.sim.simulation import step_count
 
     total = step_count(duration, dt)
     com, shape = _true_errors(make_sim, "plane", sets, dt, total, ee.SAMPLES)
-    assert not est["shape_round_off"]  # the landing deforms the body: a shape error to estimate
-    assert 0.5 < est["com_error"] / com < 2.0, (est["com_error"], com)
-    assert 0.5 < est["shape_error"] / shape < 2.0, (est["shape_error"], shape)
+    assert not est["shape_round_off"] and not est["com_round_off"]  # the landing: errors to estimate
+    for key, true in (("com", com), ("shape", shape)):
+        if key in given:
+            assert abs(est[f"observed_order_{key}"] - order) <= ee.ORDER_TOLERANCE, (key, est)
+            assert 0.5 < est[f"{key}_error"] / true < 2.0, (key, est[f"{key}_error"], true)
+        else:  # withheld because the runs do not fit the order, and said so
+            assert est[f"{key}_error"] is None, (key, est[f"{key}_error"], true)
+            assert abs(est[f"observed_order_{key}"] - order) > ee.ORDER_TOLERANCE, (key, est)
+    assert est["in_asymptotic_range"] == (len(given) == 2)
 
 
-@pytest.mark.parametrize("name, dt", [("semi_implicit_euler", 2e-4), ("velocity_verlet", 2e-4)])
+@pytest.mark.parametrize("name, dt", [
+    ("semi_implicit_euler", 2e-4), ("velocity_verlet", 2e-4),
+    # forward Euler is stable here only at tens of microseconds (it diverges at 0.1 ms: its stiff
+    # modes are held only by the dampers, kd/k = 30 us at x1000)
+    ("explicit_euler", 2.5e-5),
+    # midpoint's stability limit at x1000 is about half semi-implicit Euler's
+    ("midpoint", 1.5e-4), ("rk4", 2e-4),
+])
 def test_a_chaotic_corner_impact_gets_no_error_estimate(make_sim, name, dt):
     """A stiff (x1000 springs) cube tilted 30 degrees onto the plane lands on a corner: the runs at
     dt, dt/2 and dt/4 part ways by centimetres and do not fit the method's order, so the estimate
-    gives no centre-of-mass number, says why in words, and the run is not in the asymptotic range."""
+    gives no centre-of-mass number, says why in words, and the run is not in the asymptotic range.
+    (At a smaller step, 0.1 ms, midpoint's and RK4's runs do fit their order: the outcome is no
+    longer chaotic at that resolution, and the number they give is measured against the truth in
+    docs/benchmarks/VERLET.md.)"""
     sets = ["body.0.n=4", "body.0.size=2.0", f"body.0.center=[0, {-1.0 + 1.0 + 3 ** 0.5}, 0]",
             "body.0.rotation={axis = [1, 0, 1], degrees = 30}", "sim.integrator=" + name]
     sets += [f"body.0.{kind}.k=2000000.0" for kind in ("stretch", "shear", "bend")]
