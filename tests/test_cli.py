@@ -207,3 +207,16 @@ def test_run_dry_run_says_what_would_be_simulated_and_the_memory(cli, tmp_path):
     assert "216 particles" in r.stdout and f"memory estimate {host / 1e6:.0f} MB host" in r.stdout
     assert f"would write: --summary {summary}" in r.stdout
     assert not summary.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_impact_at_crossing_on_a_method_without_it_is_said(cli):
+    """RK4 answers impacts where its step ends: asking for the crossing rule warns, once, on stderr
+    (semi-implicit Euler, which has it, says nothing)."""
+    args = ("run", "--scene", "plane", "--set", "body.0.n=3", "--duration", "0.01",
+            "--set", "contact.impact_at_crossing=true")
+    rk4 = cli(*args, "--integrator", "rk4")
+    assert rk4.returncode == 0, rk4.stderr
+    said = [ln for ln in rk4.stderr.splitlines() if "impact_at_crossing" in ln]
+    assert len(said) == 1 and said[0].startswith("warning:") and "rk4" in said[0], rk4.stderr
+    sie = cli(*args, "--integrator", "semi_implicit_euler")
+    assert sie.returncode == 0 and "impact_at_crossing" not in sie.stderr, sie.stderr

@@ -304,6 +304,10 @@ class Simulation:
         final = self.measure()
         stats = {**self.integrator.stats(), **(self.contacts.stats() if self.contacts else {})}
         warnings, meaningless = assess(stats)
+        if int(self.terrain.impact_at_crossing[None]) and not self.integrator.answers_at_crossing:
+            warnings = warnings + [f"contact.impact_at_crossing is set, but {self.integrator_name} answers an impact "
+                                   "where its step ends (semi_implicit_euler and velocity_verlet answer it at the "
+                                   "crossing)"]
         return {
             "scene": self.scene.name,
             "integrator": self.integrator_name,

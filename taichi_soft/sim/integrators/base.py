@@ -98,6 +98,9 @@ class Integrator:
     order = 0  # global order of accuracy in dt (smooth problems)
     force_evals = 0  # force evaluations per step
     implicit = False
+    # Whether its step answers an impact at the crossing time when ``contact.impact_at_crossing``
+    # asks for it (``_drift``: the methods that move each particle along one path per step).
+    answers_at_crossing = False
     description = ""
     # The largest step [s] the gallery gives it by default (None: the scene's dt), for a method whose
     # stability limit on the default scenes is below their dt.

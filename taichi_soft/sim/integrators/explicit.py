@@ -159,6 +159,7 @@ class SemiImplicitEuler(Integrator):
     """v_{n+1} = v_n + dt a(x_n, v_n);  x_{n+1} = x_n + dt v_{n+1}. First order, symplectic."""
 
     name = "semi_implicit_euler"
+    answers_at_crossing = True
     amplification = staticmethod(linear_stability.symplectic_euler)
     sweep_dt_cap = 2e-3
     BASE_BYTES = 138 * MB  # measured (memory.py): process, runtime, compiled kernels
@@ -228,6 +229,7 @@ class VelocityVerlet(Integrator):
             return out
 
     name = "velocity_verlet"
+    answers_at_crossing = True
     amplification = staticmethod(linear_stability.velocity_verlet)
     sweep_dt_cap = 2e-3  # with the damper corrector its linear limit is semi-implicit Euler's (1.9 ms on the default cube)
     # measured (memory.py), peak RSS cold / warm cache: 147 / 127 MB, beside semi-implicit Euler's 150 / 129
