@@ -30,7 +30,8 @@ SDIRK2 (Alexander 1977, gamma = 1 - 1/sqrt 2: L-stable, second order, stiffly ac
 step, two solves (``stage`` 1 and 2, run by the driver): a backward-Euler solve of gamma h from
 (x_n, v_n) to (X1, V1), then one of gamma h over the rest of the step, (1 - gamma) h, from
 x^ = X1 + sqrt 2 (X1 - x_n), v^ = V1 + sqrt 2 (V1 - v_n) (the same ``u_base``/``h_eff`` path as
-BDF2). A particle touching the terrain at X1 is not extrapolated; restitution acts once, at the
+BDF2). A particle held on the terrain at X1 is extrapolated along the surface only, one in the
+contact band but free not at all; restitution acts once, at the
 step's end, from the velocity the step began with (``v_step``); the energy account is the whole
 step's (``h_step``). A second stage that ends with more energy than the step began with is taken
 again from (X1, V1) as backward Euler over (1 - gamma) h (``stage`` 3, counted), which keeps the
@@ -156,16 +157,22 @@ class StepScheme:
                      v_prev: ti.template(), yd: ti.template()):
         """SDIRK2's second stage for particle i: a backward-Euler solve of length gamma h from
         x^ = X1 + sqrt 2 (X1 - x_n), v^ = V1 + sqrt 2 (V1 - v_n) (x, v: the first stage's X1, V1;
-        x_prev, v_prev: x_n, v_n; dt: the stage's time (1 - gamma) h). A particle touching the
-        terrain at X1 is not extrapolated (x^ would lie inside): it starts a solve from X1 moving
-        along the surface."""
+        x_prev, v_prev: x_n, v_n; dt: the stage's time (1 - gamma) h). A particle held on the
+        terrain at X1 is extrapolated along the surface only; one within ``epsilon`` but not held
+        is not extrapolated (x^ would lie inside): it starts from X1 without its inward velocity."""
         he = self.h_eff[None]
         g = self.model.gravity[None]
         ub = SQRT2 * (x[i] - x_prev[i])
         vh = v[i] + SQRT2 * (v[i] - v_prev[i])
         if ti.static(self.terrain.has_contact):
             d0, n0 = self.terrain.query(i, x[i])
-            if self.contact.active[i] or d0 < self.terrain.epsilon[None]:
+            if self.contact.active[i]:
+                # Held: extrapolated along the surface only (the terrain's normal impulse is no
+                # force to extrapolate); friction and gravity along it act over the whole step.
+                nrm = self.contact.normal[i]
+                ub -= nrm.dot(ub) * nrm
+                vh -= nrm.dot(vh) * nrm
+            elif d0 < self.terrain.epsilon[None]:
                 vh = v[i]
                 vn = n0.dot(vh)
                 if vn < 0:
