@@ -407,11 +407,13 @@ def test_fast_mass_spring_contact_solves_reach_the_same_step(mode):
     assert np.abs(out["scaled"] - out["pcg"]).max() < 1e-8
 
 
-@pytest.mark.parametrize("name", IMPLICIT)
-def test_serial_and_parallel_launches_agree(name):
-    """The parallel mode (Python-driven phases, one launch each) runs the same ti.funcs."""
+@pytest.mark.parametrize("name,scheme", [(n, "backward_euler") for n in IMPLICIT] + [("implicit_euler", "sdirk2")])
+def test_serial_and_parallel_launches_agree(name, scheme):
+    """The parallel mode (Python-driven phases, one launch each) runs the same ti.funcs, SDIRK2's
+    two stages included."""
     model, terrain = build(n=3, size=1.0, gravity=(0.0, -9.8, 0.0), terrain="plane",
                            geometry={"point": [0.0, -0.6, 0.0], "normal": [0.0, 1.0, 0.0]},
                            center=(0.0, 0.2, 0.0), velocity=(1.0, -2.0, 0.0), angular_velocity=(0.0, 2.0, 1.0))
-    out = [simulate(model, terrain, name, FRAME, 30, options={"mode": mode})[0] for mode in ("serial", "parallel")]
+    out = [simulate(model, terrain, name, FRAME, 30, options={"mode": mode, "scheme": scheme})[0]
+           for mode in ("serial", "parallel")]
     assert np.abs(out[0] - out[1]).max() < 1e-6

@@ -374,8 +374,8 @@ class ImplicitIntegrator(Integrator):
 
     @ti.pyfunc
     def _stage_dt(self, stage, dt):
-        """The time [s] solve ``stage`` (0, 1) of a step of ``dt`` covers: all of it, or SDIRK2's
-        gamma h then (1 - gamma) h."""
+        """The time [s] solve ``stage`` of a step of ``dt`` covers: all of it (one solve a step), or
+        SDIRK2's gamma h (stage 0), then (1 - gamma) h (stage 1, and 2: stage 1 taken again)."""
         out = dt
         if self.stages > 1:
             out = SDIRK_GAMMA * dt if stage == 0 else (1.0 - SDIRK_GAMMA) * dt
