@@ -58,7 +58,7 @@ class StepAccounts:
         self.acc.bounce[None] += ti.cast(self.sc.bounce_limited[None], ti.f64)
         self.acc.lb_restarts[None] += ti.cast(self.sc.lb_restarts[None], ti.f64)
         self.acc.bdf2[None] += ti.cast(self.scheme.bdf2_step[None], ti.f64)
-        if self.scheme.stage[None] == 3:
+        if stage == 3:
             self.acc.sdirk2_fallback[None] += 1.0
         if self.sc.ls_failed[None]:
             self.acc.failed[None] += 1.0

@@ -39,7 +39,7 @@ from .restitution import BOUNCE_CG_TOL, BounceSpread
 from .scalars import START_HALVINGS, counters, step_scalars
 from .scheme import SDIRK_GAMMA, StepScheme
 from .step_end import StepEnd
-from .walk import CG_DIRECTION, STEP, InKernel, Launches
+from .walk import CG_DIRECTION, SDIRK2_STEP, STEP, InKernel, Launches
 from .walk import PHASES as SHARED_PHASES
 
 
@@ -114,6 +114,7 @@ class ImplicitIntegrator(Integrator):
         # tree, and the next field would open another (the runtime holds 512: allocation.MAX_TREES).
         self.scheme.use_bdf2(o.scheme == "bdf2")
         self.stages = 2 if o.scheme == "sdirk2" else 1  # SDIRK2: two solves a step
+        self.step_walk = SDIRK2_STEP if self.stages > 1 else STEP  # one step's sequence (walk.py)
         assign({self.tol_acc: o.residual_tol, self.roundoff: 16 * np.finfo(model.real).eps,
                 self.end.energy_tol: 1e3 * np.finfo(model.real).eps,
                 self.objective.friction_velocity: o.friction_velocity,
@@ -342,30 +343,13 @@ class ImplicitIntegrator(Integrator):
     # -- the drivers: one source (walk.py), run inside the serial kernel or from Python scope -----
     @ti.func
     def _step_body(self, x: ti.template(), v: ti.template(), dt, step):
-        if ti.static(self.stages == 1):
-            STEP.func(self, self.in_kernel, x, v, dt, step)
-        else:
-            # SDIRK2: two stages; a second stage that gained energy is taken again from X1 as a
-            # backward-Euler solve over the same time (counted: sdirk2_fallback_steps).
-            for stage in range(3):
-                if stage < 2 or self.scheme.redo[None]:
-                    if stage == 2:
-                        self._restore_stage(x, v)
-                    self.scheme.stage[None] = stage + 1
-                    STEP.func(self, self.in_kernel, x, v, self._stage_dt(stage, dt), step)
+        self.step_walk.func(self, self.in_kernel, x, v, dt, step)
 
     def _advance_parallel(self, state, dt: float, n_steps: int) -> int:
         """``n_steps`` steps of ``dt`` [s], one launch per phase; returns the steps taken (to divergence)."""
         start = self._step_counter
         for k in range(n_steps):
-            for stage in range(self.stages + (self.stages > 1)):
-                if stage == 2:
-                    if not self.scheme.redo[None]:
-                        break
-                    self._k_restore_stage(state.x, state.v)
-                if self.stages > 1:
-                    self.scheme.stage[None] = stage + 1
-                STEP.py(self, self.launches, state.x, state.v, self._stage_dt(stage, dt), start + k)
+            self.step_walk.py(self, self.launches, state.x, state.v, dt, start + k)
             if self.diverged:
                 break
         self._step_counter += n_steps
@@ -387,10 +371,6 @@ class ImplicitIntegrator(Integrator):
         for i in range(self.n):
             x[i] = self.objective.x_prev[i]
             v[i] = self.objective.v_prev[i]
-
-    @ti.kernel
-    def _k_restore_stage(self, x: ti.template(), v: ti.template()):
-        self._restore_stage(x, v)
 
     def _serial_ir_passes(self) -> bool:
         # With body pairs the one-launch step is several times the one-body kernel, and Taichi's IR

@@ -135,10 +135,8 @@ class StepScheme:
         for i in range(self.n):
             if stage == 1:
                 self.v_step[i] = v[i]
-            elif stage == 2 and self.model.free(i):
-                self.sc.g_stage[None] += self.model.mass[i] * g.dot(x[i] - x_prev[i])
-        for i in range(self.n):
             if stage == 2 and self.model.free(i):
+                self.sc.g_stage[None] += self.model.mass[i] * g.dot(x[i] - x_prev[i])
                 self._stage2_base(i, x, v, dt, x_prev, v_prev, yd)
             elif ok and self.model.free(i):
                 ub = (x[i] - x_prev[i]) / 3.0

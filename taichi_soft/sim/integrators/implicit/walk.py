@@ -19,9 +19,10 @@ decision is a ti.func that writes the step's scalars (``sc``: scalars.py).
     loops over particles and springs parallel; each scalar read is a device sync.
 
 Both executors are generated from the declaration, so the two drivers take the same decisions by
-construction, not by keeping copies alike. Only the two entries that are no single ti.func are
-written per executor: ``walk`` (a sequence within the step: a solver's ``DIRECTION``) and ``cg``
-(the linear solve: one loop inside the kernel, one launch per CG iteration from Python).
+construction, not by keeping copies alike. Only the entries that are no single ti.func are
+written per executor: ``walk`` (a sequence within the step: a solver's ``DIRECTION``), ``step``
+(one whole step, for a scheme of several solves a step: ``SDIRK2_STEP``) and ``cg`` (the linear
+solve: one loop inside the kernel, one launch per CG iteration from Python).
 """
 
 import taichi as ti
@@ -43,6 +44,7 @@ PHASES = {
     "end_velocities": ("end.velocities", (FIELD, REAL)),  # x, h
     "bounce_rhs": ("_bounce_rhs", ()),
     "end_finish": ("end.finish", (FIELD, FIELD, COUNT)),  # x, v, step
+    "restore_stage": ("_restore_stage", (FIELD, FIELD)),  # x, v: SDIRK2's X1, V1 again
 }
 
 
@@ -96,6 +98,21 @@ def _step(integ, ph, x, v, dt, step):
 STEP = Walk(_step)
 
 
+def _sdirk2_step(integ, ph, x, v, dt, step):
+    """SDIRK2's step of ``dt`` [s] (scheme.py): two solves, and a second stage that gained energy
+    taken again from (X1, V1) as a backward-Euler solve over the same time (counted:
+    ``sdirk2_fallback_steps``)."""
+    for stage in range(3):
+        if stage < 2 or integ.scheme.redo[None]:
+            if stage == 2:
+                ph.restore_stage(x, v)
+            integ.scheme.stage[None] = stage + 1
+            ph.step(x, v, integ._stage_dt(stage, dt), step)
+
+
+SDIRK2_STEP = Walk(_sdirk2_step)
+
+
 def _cg_direction(integ, ph, x):
     """dx from rhs by the solver's PCG (Newton's direction)."""
     ph.cg(integ.objective.rhs, integ.objective.dx)
@@ -138,6 +155,10 @@ class InKernel:
         w.func(self.i, self, x)
 
     @ti.func
+    def step(self, x: ti.template(), v: ti.template(), dt, step):
+        STEP.func(self.i, self, x, v, dt, step)
+
+    @ti.func
     def cg(self, b: ti.template(), out: ti.template()):
         """out = A^-1 b by the solver's PCG (to its current ``rel_tol``), counted in ``sc.cg``."""
         self.i.pcg.solve(self.i, b, out, self.i.cg_iters[None])
@@ -174,6 +195,9 @@ class Launches:
 
     def walk(self, w, x):
         w.py(self.i, self, x)
+
+    def step(self, x, v, dt, step):
+        STEP.py(self.i, self, x, v, dt, step)
 
     def cg(self, b, out):
         """The same solve, one launch per CG iteration."""
