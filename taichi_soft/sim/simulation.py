@@ -20,7 +20,7 @@ from .contact.bodies import BodyContacts, body_radius
 from ..errors import UserError
 from .lattice import SPRING_KINDS, rotation_matrix
 from .forces import Diagnostics
-from .integrators import make_integrator, names as integrator_names
+from .integrators import REGISTRY, make_integrator, names as integrator_names
 from .integrators.implicit.health import assess
 from .integrators.linear_stability import divergence_hint
 from .scene import Scene, scene_from_dict
@@ -305,9 +305,9 @@ class Simulation:
         stats = {**self.integrator.stats(), **(self.contacts.stats() if self.contacts else {})}
         warnings, meaningless = assess(stats)
         if int(self.terrain.impact_at_crossing[None]) and not self.integrator.answers_at_crossing:
+            those = " and ".join(name for name, cls in REGISTRY.items() if cls.answers_at_crossing)
             warnings = warnings + [f"contact.impact_at_crossing is set, but {self.integrator_name} answers an impact "
-                                   "where its step ends (semi_implicit_euler and velocity_verlet answer it at the "
-                                   "crossing)"]
+                                   f"where its step ends ({those} answer it at the crossing)"]
         return {
             "scene": self.scene.name,
             "integrator": self.integrator_name,
