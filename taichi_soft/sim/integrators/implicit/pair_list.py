@@ -223,7 +223,6 @@ class PairList(BodyGrid):
         self._mark_near(self.mid)
         for h in range(self.table_size):
             self.bucket_count[h] = 0
-        self.n_pairs[None] = 0
         for i in range(self.n):
             if self.near[i]:
                 ti.atomic_add(self.bucket_count[self._bucket(self._cell_of(self.mid[i]))], 1)
